@@ -1,0 +1,283 @@
+"""The paper's Scheimpflug camera model (rotation-matrix model, RMM), eqs (1)-(7).
+
+A camera-frame point ``X_cam = (X, Y, Z)`` (OpenCV frame: x right, y down, z forward, mm) maps to a pixel of
+the tilted sensor in four steps:
+
+1. normalise on the ideal image plane I_O:           ``x_n = X / Z, y_n = Y / Z``
+2. Brown distortion on I_O (eq 7, written out):       ``x_d = x_n (1 + k1 r^2 + k2 r^4) + 2 p1 x_n y_n + p2 (r^2 + 2 x_n^2)``
+                                                     ``y_d = y_n (1 + k1 r^2 + k2 r^4) + 2 p2 x_n y_n + p1 (r^2 + 2 y_n^2)``
+3. the Scheimpflug tilt (eqs 3, 5, 6):                ``lambda [x_t, y_t, 1]^T = A R_S^T [x_d, y_d, 1]^T``
+   with ``R_S = R_Y(beta) R_X(alpha)``
+4. the intrinsic matrix K (eq 2):                     ``u = fx x_t + cx, v = fy y_t + cy``
+
+Pixel coordinates follow OpenCV: the centre of pixel (row i, column j) is at ``(u, v) = (j, i)``.
+
+Geometrically, step 3 intersects the ray through ``(x_d, y_d, 1)`` with the plane through ``(0, 0, 1)``
+whose normal is ``R_S e_z`` and expresses the hit in that plane's own axes ``R_S e_x, R_S e_y`` (the paper's
+matrix A is exactly that intersection written as a homography). ``tests/test_camera.py`` checks this against
+an explicit ray/plane intersection.
+
+OpenCV's ``CALIB_TILTED_MODEL`` uses the same distortion-then-tilt order but the rotation
+``R_Y(-tau_y) R_X(-tau_x)`` where the paper uses ``R_S^T = R_X(-alpha) R_Y(-beta)``. The two coincide exactly
+when one of the angles is zero (``tau_x = alpha, tau_y = beta``); with both non-zero they are different
+parametrisations (about 1 px apart at the image corners for Table 1's left camera), see
+:func:`opencv_tilted_model`.
+"""
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, fields
+
+import numpy as np
+
+#: Parameter names of Table 1, in order.
+INTRINSIC_NAMES = ("fx", "fy", "cx", "cy", "alpha_deg", "beta_deg", "k1", "k2", "p1", "p2")
+
+#: Tilt angles at or beyond this are refused: the tilted plane would be nearly parallel to the rays.
+MAX_TILT_DEG = 45.0
+
+
+def rotation_x(angle_rad: float) -> np.ndarray:
+    """Right-handed rotation about X by ``angle_rad`` (the paper's R_X, eq 3), shape (3, 3)."""
+    c, s = np.cos(angle_rad), np.sin(angle_rad)
+    return np.array([[1.0, 0.0, 0.0], [0.0, c, -s], [0.0, s, c]])
+
+
+def rotation_y(angle_rad: float) -> np.ndarray:
+    """Right-handed rotation about Y by ``angle_rad`` (the paper's R_Y, eq 3), shape (3, 3)."""
+    c, s = np.cos(angle_rad), np.sin(angle_rad)
+    return np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
+
+
+def scheimpflug_rotation(alpha_rad: float, beta_rad: float) -> np.ndarray:
+    """The sensor rotation ``R_S = R_Y(beta) R_X(alpha)`` of eq (3), shape (3, 3)."""
+    return rotation_y(beta_rad) @ rotation_x(alpha_rad)
+
+
+def scheimpflug_matrix(alpha_rad: float, beta_rad: float) -> np.ndarray:
+    """The Scheimpflug array A of eq (5), shape (3, 3)."""
+    ca, sa = np.cos(alpha_rad), np.sin(alpha_rad)
+    cb, sb = np.cos(beta_rad), np.sin(beta_rad)
+    return np.array([[ca * cb, 0.0, sb], [0.0, ca * cb, -cb * sa], [0.0, 0.0, 1.0]])
+
+
+def tilt_homography(alpha_rad: float, beta_rad: float) -> np.ndarray:
+    """``A R_S^T``: maps distorted ideal-plane coordinates (x_d, y_d, 1) to tilted-plane ones, shape (3, 3)."""
+    return scheimpflug_matrix(alpha_rad, beta_rad) @ scheimpflug_rotation(alpha_rad, beta_rad).T
+
+
+@dataclass(frozen=True)
+class ScheimpflugCamera:
+    """Intrinsics of one Scheimpflug camera, named as in Table 1 of the paper.
+
+    Parameters
+    ----------
+    fx, fy : float
+        Focal lengths in pixels (> 0).
+    cx, cy : float
+        Principal point in pixels (OpenCV convention: pixel centres at integers).
+    alpha_deg, beta_deg : float
+        Sensor tilt about the camera X and Y axes in degrees, ``|angle| < 45``.
+    k1, k2, p1, p2 : float
+        Radial and tangential distortion on the ideal image plane.
+    width, height : int
+        Image size in pixels.
+    """
+
+    fx: float
+    fy: float
+    cx: float
+    cy: float
+    alpha_deg: float = 0.0
+    beta_deg: float = 0.0
+    k1: float = 0.0
+    k2: float = 0.0
+    p1: float = 0.0
+    p2: float = 0.0
+    width: int = 0
+    height: int = 0
+
+    def __post_init__(self):
+        for f in fields(self):
+            value = getattr(self, f.name)
+            if not np.isfinite(value):
+                raise ValueError(f"camera parameter {f.name} must be finite, got {value!r}")
+        if self.fx <= 0 or self.fy <= 0:
+            raise ValueError(f"focal lengths must be positive, got fx={self.fx}, fy={self.fy} px")
+        for name in ("alpha_deg", "beta_deg"):
+            if abs(getattr(self, name)) >= MAX_TILT_DEG:
+                raise ValueError(
+                    f"{name}={getattr(self, name)} is outside the supported Scheimpflug tilt range "
+                    f"|angle| < {MAX_TILT_DEG} deg")
+        if self.width < 0 or self.height < 0 or int(self.width) != self.width or int(self.height) != self.height:
+            raise ValueError(f"image size must be non-negative integers, got {self.width} x {self.height}")
+
+    # ----------------------------------------------------------------------------------------------------
+    @classmethod
+    def from_dict(cls, d: dict) -> "ScheimpflugCamera":
+        """Build from a dict with Table 1 names; ``fx_px``-style keys with unit suffixes are accepted too."""
+        known = {f.name for f in fields(cls)}
+        kwargs = {}
+        for key, value in d.items():
+            name = key[:-3] if key.endswith("_px") and key[:-3] in known else key
+            if name in known:
+                kwargs[name] = value
+        missing = [n for n in ("fx", "fy", "cx", "cy") if n not in kwargs]
+        if missing:
+            raise ValueError(f"camera description lacks {', '.join(missing)}: got keys {sorted(d)}")
+        return cls(**kwargs)
+
+    def to_dict(self) -> dict:
+        """Plain dict with Table 1 names plus ``width`` and ``height``."""
+        return asdict(self)
+
+    @property
+    def alpha_rad(self) -> float:
+        return float(np.deg2rad(self.alpha_deg))
+
+    @property
+    def beta_rad(self) -> float:
+        return float(np.deg2rad(self.beta_deg))
+
+    @property
+    def K(self) -> np.ndarray:
+        """Intrinsic matrix of eq (2), shape (3, 3)."""
+        return np.array([[self.fx, 0.0, self.cx], [0.0, self.fy, self.cy], [0.0, 0.0, 1.0]])
+
+    @property
+    def is_tilted(self) -> bool:
+        return self.alpha_deg != 0.0 or self.beta_deg != 0.0
+
+    def scaled(self, scale: float) -> "ScheimpflugCamera":
+        """The same camera with the image shrunk by ``scale``: size and K scale together.
+
+        Pixel centres map as ``u' + 0.5 = scale (u + 0.5)`` so the image edges stay where they were.
+        """
+        if not scale > 0:
+            raise ValueError(f"scale must be positive, got {scale}")
+        return ScheimpflugCamera(
+            fx=self.fx * scale, fy=self.fy * scale,
+            cx=(self.cx + 0.5) * scale - 0.5, cy=(self.cy + 0.5) * scale - 0.5,
+            alpha_deg=self.alpha_deg, beta_deg=self.beta_deg,
+            k1=self.k1, k2=self.k2, p1=self.p1, p2=self.p2,
+            width=int(round(self.width * scale)), height=int(round(self.height * scale)))
+
+    # ----------------------------------------------------------------------------------------------------
+    def distort(self, xy_n: np.ndarray) -> np.ndarray:
+        """Apply Brown distortion (eq 7) to ideal normalised coordinates, (N, 2) -> (N, 2)."""
+        xy_n = np.asarray(xy_n, dtype=float)
+        x, y = xy_n[..., 0], xy_n[..., 1]
+        r2 = x * x + y * y
+        radial = 1.0 + self.k1 * r2 + self.k2 * r2 * r2
+        xd = x * radial + 2.0 * self.p1 * x * y + self.p2 * (r2 + 2.0 * x * x)
+        yd = y * radial + 2.0 * self.p2 * x * y + self.p1 * (r2 + 2.0 * y * y)
+        return np.stack([xd, yd], axis=-1)
+
+    def _distortion_jacobian(self, x, y):
+        r2 = x * x + y * y
+        radial = 1.0 + self.k1 * r2 + self.k2 * r2 * r2
+        dradial = 2.0 * self.k1 + 4.0 * self.k2 * r2  # d(radial)/d(r2) * 2
+        j11 = radial + x * dradial * x + 2.0 * self.p1 * y + 6.0 * self.p2 * x
+        j12 = x * dradial * y + 2.0 * self.p1 * x + 2.0 * self.p2 * y
+        j21 = y * dradial * x + 2.0 * self.p2 * y + 2.0 * self.p1 * x
+        j22 = radial + y * dradial * y + 2.0 * self.p2 * x + 6.0 * self.p1 * y
+        return j11, j12, j21, j22
+
+    def undistort(self, xy_d: np.ndarray, tol: float = 1e-13, max_iter: int = 50) -> np.ndarray:
+        """Invert :meth:`distort` by Newton iteration, (N, 2) -> (N, 2).
+
+        ``tol`` is on the normalised residual (1e-13 is ~1e-9 px at fx ~ 1e4). Points that do not converge
+        (far outside the calibrated field, where the polynomial folds over) come back as NaN.
+        """
+        xy_d = np.asarray(xy_d, dtype=float)
+        xy = xy_d.copy()
+        for _ in range(max_iter):
+            res = self.distort(xy) - xy_d
+            if np.all(np.abs(res) <= tol):
+                break
+            j11, j12, j21, j22 = self._distortion_jacobian(xy[..., 0], xy[..., 1])
+            det = j11 * j22 - j12 * j21
+            dx = (j22 * res[..., 0] - j12 * res[..., 1]) / det
+            dy = (-j21 * res[..., 0] + j11 * res[..., 1]) / det
+            xy[..., 0] -= dx
+            xy[..., 1] -= dy
+        res = np.abs(self.distort(xy) - xy_d).max(axis=-1)
+        xy[~(res <= 1e3 * tol)] = np.nan
+        return xy
+
+    # ----------------------------------------------------------------------------------------------------
+    def project(self, X_cam: np.ndarray) -> np.ndarray:
+        """Project camera-frame points to tilted-sensor pixels.
+
+        Parameters
+        ----------
+        X_cam : (N, 3) array, mm
+            Points in this camera's frame.
+
+        Returns
+        -------
+        (N, 2) array, px
+            Pixel coordinates (u, v), OpenCV convention. Points at or behind the camera (Z <= 0) give NaN.
+        """
+        X_cam = np.atleast_2d(np.asarray(X_cam, dtype=float))
+        if X_cam.shape[-1] != 3:
+            raise ValueError(f"X_cam must have shape (N, 3), got {X_cam.shape}")
+        z = X_cam[..., 2]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            xy_n = X_cam[..., :2] / z[..., None]
+        xy_n[z <= 0] = np.nan
+        return self.project_normalized(xy_n)
+
+    def project_normalized(self, xy_n: np.ndarray) -> np.ndarray:
+        """Ideal normalised coordinates (x_n, y_n), (N, 2) -> pixels (N, 2)."""
+        xy_d = self.distort(xy_n)
+        H = tilt_homography(self.alpha_rad, self.beta_rad)
+        h = xy_d @ H[:, :2].T + H[:, 2]
+        xt = h[..., 0] / h[..., 2]
+        yt = h[..., 1] / h[..., 2]
+        return np.stack([self.fx * xt + self.cx, self.fy * yt + self.cy], axis=-1)
+
+    def backproject(self, pixels: np.ndarray) -> np.ndarray:
+        """Pixels to ideal normalised coordinates: the ray through pixel (u, v) is ``(x_n, y_n, 1)``.
+
+        Parameters
+        ----------
+        pixels : (N, 2) array, px
+
+        Returns
+        -------
+        (N, 2) array
+            ``(x_n, y_n)``; NaN where the undistortion does not converge.
+        """
+        pixels = np.atleast_2d(np.asarray(pixels, dtype=float))
+        if pixels.shape[-1] != 2:
+            raise ValueError(f"pixels must have shape (N, 2), got {pixels.shape}")
+        xt = (pixels[..., 0] - self.cx) / self.fx
+        yt = (pixels[..., 1] - self.cy) / self.fy
+        Hinv = np.linalg.inv(tilt_homography(self.alpha_rad, self.beta_rad))
+        h = np.stack([xt, yt], axis=-1) @ Hinv[:, :2].T + Hinv[:, 2]
+        xy_d = h[..., :2] / h[..., 2:3]
+        return self.undistort(xy_d)
+
+    def rays(self, pixels: np.ndarray) -> np.ndarray:
+        """Unit ray directions in the camera frame through ``pixels``, (N, 2) -> (N, 3)."""
+        xy = self.backproject(pixels)
+        d = np.concatenate([xy, np.ones(xy.shape[:-1] + (1,))], axis=-1)
+        return d / np.linalg.norm(d, axis=-1, keepdims=True)
+
+
+def opencv_tilted_model(camera: ScheimpflugCamera) -> tuple[np.ndarray, np.ndarray]:
+    """OpenCV's ``CALIB_TILTED_MODEL`` form of ``camera``: ``(K, dist)`` with 14 coefficients.
+
+    Exact only for a single-axis tilt (``alpha_deg == 0`` or ``beta_deg == 0``), where ``tau_x = alpha`` and
+    ``tau_y = beta``. With both angles non-zero the rotation orders differ (paper ``R_X(-a) R_Y(-b)``,
+    OpenCV ``R_Y(-ty) R_X(-tx)``) and no choice of (tau_x, tau_y) reproduces the paper's model, so this
+    raises ``ValueError`` instead of returning a silently different camera.
+    """
+    if camera.alpha_deg != 0.0 and camera.beta_deg != 0.0:
+        raise ValueError(
+            "OpenCV's tilted model equals the paper's RMM only for a single-axis tilt; this camera has "
+            f"alpha={camera.alpha_deg} deg and beta={camera.beta_deg} deg (the rotation orders differ)")
+    dist = np.zeros(14)
+    dist[[0, 1, 2, 3]] = camera.k1, camera.k2, camera.p1, camera.p2
+    dist[12], dist[13] = camera.alpha_rad, camera.beta_rad
+    return camera.K, dist

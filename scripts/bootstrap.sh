@@ -1,0 +1,39 @@
+#!/usr/bin/env bash
+# Set up everything the workbench needs on a fresh Debian/Ubuntu machine with Python >= 3.11:
+#   1. the LLVM 19 shared library that Dr.Jit's LLVM backend loads (Debian package libllvm19),
+#   2. a virtual environment in .venv with the project and its test tools.
+# Idempotent: re-running it only installs what is missing.
+set -euo pipefail
+here="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
+cd "$here"
+PYTHON="${PYTHON:-python3}"
+
+have_llvm19() {
+    ls /usr/lib/*/libLLVM-19*.so* /usr/lib/*/libLLVM.so.19* /usr/lib/llvm-19/lib/libLLVM*.so* >/dev/null 2>&1
+}
+
+if ! have_llvm19; then
+    if command -v apt-get >/dev/null 2>&1; then
+        SUDO=""
+        [ "$(id -u)" -ne 0 ] && SUDO="sudo"
+        echo "[bootstrap] installing libllvm19 (needed by Dr.Jit's LLVM backend)"
+        $SUDO apt-get update -qq
+        DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -qq libllvm19 >/dev/null
+    else
+        echo "[bootstrap] WARNING: no apt-get; install LLVM 19's shared library (libLLVM-19.so) yourself" >&2
+    fi
+fi
+
+if [ ! -x .venv/bin/python ]; then
+    echo "[bootstrap] creating .venv with $($PYTHON --version)"
+    "$PYTHON" -m venv .venv
+fi
+# Skip pip when the installed project is already current (saves ~20 s on repeated runs).
+stamp=".venv/.installed-$(sha1sum pyproject.toml | cut -c1-12)"
+if [ ! -f "$stamp" ]; then
+    echo "[bootstrap] installing the project and its dependencies into .venv"
+    .venv/bin/python -m pip install -q --upgrade pip
+    .venv/bin/python -m pip install -q -e ".[test]"
+    rm -f .venv/.installed-* && touch "$stamp"
+fi
+echo "[bootstrap] ready: $(.venv/bin/python -c 'import mitsuba, drjit; print("mitsuba", mitsuba.__version__, "drjit", drjit.__version__)' 2>/dev/null || echo 'mitsuba import deferred')"
