@@ -27,6 +27,7 @@ from __future__ import annotations
 
 from dataclasses import asdict, dataclass, fields
 
+import numba
 import numpy as np
 
 #: Parameter names of Table 1, in order.
@@ -172,16 +173,6 @@ class ScheimpflugCamera:
         yd = y * radial + 2.0 * self.p2 * x * y + self.p1 * (r2 + 2.0 * y * y)
         return np.stack([xd, yd], axis=-1)
 
-    def _distortion_jacobian(self, x, y):
-        r2 = x * x + y * y
-        radial = 1.0 + self.k1 * r2 + self.k2 * r2 * r2
-        dradial = 2.0 * self.k1 + 4.0 * self.k2 * r2  # d(radial)/d(r2) * 2
-        j11 = radial + x * dradial * x + 2.0 * self.p1 * y + 6.0 * self.p2 * x
-        j12 = x * dradial * y + 2.0 * self.p1 * x + 2.0 * self.p2 * y
-        j21 = y * dradial * x + 2.0 * self.p2 * y + 2.0 * self.p1 * x
-        j22 = radial + y * dradial * y + 2.0 * self.p2 * x + 6.0 * self.p1 * y
-        return j11, j12, j21, j22
-
     def undistort(self, xy_d: np.ndarray, tol: float = 1e-13, max_iter: int = 50) -> np.ndarray:
         """Invert :meth:`distort` by Newton iteration, (N, 2) -> (N, 2).
 
@@ -189,20 +180,9 @@ class ScheimpflugCamera:
         (far outside the calibrated field, where the polynomial folds over) come back as NaN.
         """
         xy_d = np.asarray(xy_d, dtype=float)
-        xy = xy_d.copy()
-        for _ in range(max_iter):
-            res = self.distort(xy) - xy_d
-            if np.all(np.abs(res) <= tol):
-                break
-            j11, j12, j21, j22 = self._distortion_jacobian(xy[..., 0], xy[..., 1])
-            det = j11 * j22 - j12 * j21
-            dx = (j22 * res[..., 0] - j12 * res[..., 1]) / det
-            dy = (-j21 * res[..., 0] + j11 * res[..., 1]) / det
-            xy[..., 0] -= dx
-            xy[..., 1] -= dy
-        res = np.abs(self.distort(xy) - xy_d).max(axis=-1)
-        xy[~(res <= 1e3 * tol)] = np.nan
-        return xy
+        flat = np.ascontiguousarray(xy_d.reshape(-1, 2))
+        out = _undistort_newton(flat, self.k1, self.k2, self.p1, self.p2, tol, max_iter)
+        return out.reshape(xy_d.shape)
 
     # ----------------------------------------------------------------------------------------------------
     def project(self, X_cam: np.ndarray) -> np.ndarray:
@@ -263,6 +243,37 @@ class ScheimpflugCamera:
         xy = self.backproject(pixels)
         d = np.concatenate([xy, np.ones(xy.shape[:-1] + (1,))], axis=-1)
         return d / np.linalg.norm(d, axis=-1, keepdims=True)
+
+
+@numba.njit(cache=True)
+def _undistort_newton(xy_d, k1, k2, p1, p2, tol, max_iter):
+    """Newton inversion of the Brown model per point; NaN where it does not converge. (N, 2) -> (N, 2)."""
+    out = np.empty_like(xy_d)
+    for i in range(xy_d.shape[0]):
+        xd, yd = xy_d[i, 0], xy_d[i, 1]
+        x, y = xd, yd
+        ok = False
+        for _ in range(max_iter):
+            r2 = x * x + y * y
+            radial = 1.0 + k1 * r2 + k2 * r2 * r2
+            rx = x * radial + 2.0 * p1 * x * y + p2 * (r2 + 2.0 * x * x) - xd
+            ry = y * radial + 2.0 * p2 * x * y + p1 * (r2 + 2.0 * y * y) - yd
+            if abs(rx) <= tol and abs(ry) <= tol:
+                ok = True
+                break
+            dradial = 2.0 * k1 + 4.0 * k2 * r2  # 2 d(radial)/d(r^2)
+            j11 = radial + x * dradial * x + 2.0 * p1 * y + 6.0 * p2 * x
+            j12 = x * dradial * y + 2.0 * p1 * x + 2.0 * p2 * y
+            j21 = y * dradial * x + 2.0 * p2 * y + 2.0 * p1 * x
+            j22 = radial + y * dradial * y + 2.0 * p2 * x + 6.0 * p1 * y
+            det = j11 * j22 - j12 * j21
+            x -= (j22 * rx - j12 * ry) / det
+            y -= (-j21 * rx + j11 * ry) / det
+        if ok:
+            out[i, 0], out[i, 1] = x, y
+        else:
+            out[i, 0], out[i, 1] = np.nan, np.nan
+    return out
 
 
 def opencv_tilted_model(camera: ScheimpflugCamera) -> tuple[np.ndarray, np.ndarray]:

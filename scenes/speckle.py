@@ -14,12 +14,15 @@ the same at the border as in the middle. Texel (row i, column j) has its centre 
 
 With ``lambda`` speckles per texel and disk area ``a = pi d^2 / 4``, the union covers a fraction
 ``1 - exp(-lambda a)`` of the plane, so ``lambda = -ln(1 - density) / a`` gives the requested density.
+
+The default low-pass (sigma = d / 6) removes almost all power above 0.25 cycles/texel for d >= 8 and, as a
+side effect, makes the autocorrelation width (:func:`speckle_size_from_pattern`, the usual DIC measure of
+speckle size) match the nominal diameter ``d`` within about 10 % for d >= 6 texels.
 """
 from __future__ import annotations
 
 import numpy as np
 import scipy.fft
-from scipy.optimize import brentq
 
 #: Below this nominal diameter a speckle is not resolved by the texture.
 MIN_SPECKLE_SIZE_TEXELS = 2.0
@@ -148,50 +151,36 @@ def gaussian_lowpass(image: np.ndarray, sigma_texels: float) -> np.ndarray:
     return scipy.fft.irfft2(spectrum, s=(rows, cols), workers=-1)
 
 
-def speckle_size_from_pattern(pattern: np.ndarray, density: float | None = None) -> float:
-    """Estimate the speckle diameter of a dark-disk speckle pattern from its autocorrelation.
+def speckle_size_from_pattern(pattern: np.ndarray) -> float:
+    """Estimate the mean speckle size from the autocorrelation (full width at half maximum).
 
-    The normalised autocovariance ``rho(h)`` of the row and column lags is averaged and the lag ``h_half``
-    where it first falls to 1/2 is found by linear interpolation. For a Boolean model of disks of diameter
-    ``d`` covering a fraction ``p``,
+    The usual DIC definition: the normalised autocovariance ``rho(h)`` is averaged over row and column lags,
+    the lag ``h_half`` where it first falls to 1/2 is found by linear interpolation between integer lags,
+    and the speckle size is ``2 h_half``.
 
-        rho(h) = (exp(lambda a g(h/d)) - 1) / (exp(lambda a) - 1),   lambda a = -ln(1 - p),
-        g(u) = (2 / pi) (arccos(u) - u sqrt(1 - u^2))   (overlap fraction of two disks ``u d`` apart),
-
-    so ``d = h_half / u_half`` with ``u_half`` solving ``rho = 1/2`` (``u_half`` ~ 0.40 for sparse
-    speckles, 0.33 at ``p = 0.5``; the plain "2 x half width" rule would report 0.66 d there).
-    The Gaussian low-pass of :func:`speckle_pattern` is ignored; it widens the estimate slightly.
+    For :func:`speckle_pattern` with the default smoothing this reproduces ``speckle_size_texels`` within
+    about 10 % for sizes >= 6 texels and densities 0.2-0.7. Smaller speckles read larger (about +20 % at
+    3-4 texels, +45 % at 2) because the texel grid itself blurs them. Without the low-pass the estimate is
+    below the disk diameter (about 0.75 d at density 0.5): overlapping disks of a Boolean model decorrelate
+    faster than one isolated disk does.
 
     Parameters
     ----------
     pattern : ndarray, shape (rows, cols)
-        Speckle pattern, dark speckles on bright background, at least 8 x 8.
-    density : float or None
-        Dark-area fraction ``p`` if known, in (0, 1). None estimates it as the fraction of pixels darker
-        than the midpoint between the 0.5th and 99.5th grey-value percentiles.
+        Speckle image, at least 8 x 8; need not be periodic.
 
     Returns
     -------
     float
-        Estimated mean speckle diameter in texels (pattern pixels).
+        Estimated speckle size in pattern pixels (texels).
     """
     pattern = np.asarray(pattern, dtype=np.float64)
     if pattern.ndim != 2 or min(pattern.shape) < 8:
         raise ValueError(f"pattern must be 2-D and at least 8 x 8, got shape {pattern.shape}")
-    if not np.all(np.isfinite(pattern)):
-        raise ValueError(f"pattern has {np.count_nonzero(~np.isfinite(pattern))} non-finite values")
-    if density is None:
-        lo, hi = np.percentile(pattern, [0.5, 99.5])
-        if hi <= lo:
-            raise ValueError("pattern is flat: no speckles to measure")
-        density = float(np.mean(pattern < 0.5 * (lo + hi)))
-    density = _require_finite(density, "density")
-    if not 0.0 < density < 1.0:
-        raise ValueError(f"density must be in (0, 1), got {density}")
-
-    h_half = _half_correlation_lag(pattern)
-    u_half = _boolean_model_half_lag(density)
-    return float(h_half / u_half)
+    n_bad = np.count_nonzero(~np.isfinite(pattern))
+    if n_bad:
+        raise ValueError(f"pattern has {n_bad} non-finite values")
+    return 2.0 * _half_correlation_lag(pattern)
 
 
 # ------------------------------------------------------------------------------------------------------------
@@ -217,18 +206,6 @@ def _half_correlation_lag(pattern: np.ndarray) -> float:
     k = below[0]
     # rho[k-1] > 0.5 >= rho[k]; interpolate linearly between the two lags.
     return float(k - 1 + (rho[k - 1] - 0.5) / (rho[k - 1] - rho[k]))
-
-
-def _boolean_model_half_lag(density: float) -> float:
-    """Lag / diameter at which a Boolean disk model of the given density has autocorrelation 1/2."""
-    lam_a = -np.log1p(-density)
-    # rho = 1/2  <=>  overlap fraction g(u) = ln((exp(lam_a) + 1) / 2) / lam_a
-    target = np.log(0.5 * (np.exp(lam_a) + 1.0)) / lam_a
-
-    def overlap_minus_target(u: float) -> float:
-        return 2.0 / np.pi * (np.arccos(u) - u * np.sqrt(1.0 - u * u)) - target
-
-    return float(brentq(overlap_minus_target, 0.0, 1.0, xtol=1e-10))
 
 
 def _splat_bilinear(centres_rc: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
