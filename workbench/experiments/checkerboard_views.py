@@ -1,0 +1,111 @@
+"""Render stereo views of the paper's checkerboard with their ground truth (``workbench render checkerboard``)."""
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import cv2
+import numpy as np
+from tqdm import tqdm
+
+from scenes.camera import SensorSpec
+from scenes.noise import SensorNoise, to_image_dtype
+from scenes.render import render_view
+from scenes.targets import Checkerboard
+from workbench.poses import check_in_view, random_board_poses
+from workbench.rigs import StereoRig
+
+EXPOSURE_GREY = {8: 255.0, 16: 65535.0}
+
+
+@dataclass
+class BoardView:
+    """One camera's rendered view of the board and its truth."""
+
+    view: int
+    camera: str
+    image_grey: np.ndarray            # (H, W) noise-free grey levels
+    R_cam_from_board: np.ndarray      # (3, 3)
+    t_cam_from_board_mm: np.ndarray   # (3,)
+    points_cam_mm: np.ndarray         # (N, 3) inner corners in this camera's frame
+    pixels: np.ndarray                # (N, 2) their true projections (measurement.camera), OpenCV convention
+    extra: dict = field(default_factory=dict)
+
+
+def board_outline_mm(board: Checkerboard) -> np.ndarray:
+    """Outer corners of the checkered area (without the white margin), board frame, (4, 3)."""
+    x0, x1, y0, y1 = board.extent_board_mm()
+    m = board.margin_squares * board.square_mm
+    return np.array([[x0 + m, y0 + m, 0], [x1 - m, y0 + m, 0], [x1 - m, y1 - m, 0], [x0 + m, y1 - m, 0]])
+
+
+def sensor_spec_for(rig: StereoRig, side: str, **lens) -> SensorSpec:
+    """The renderer's description of one of the rig's cameras (same Table 1 names)."""
+    return SensorSpec(**rig.camera(side).to_dict(), pixel_pitch_mm=rig.pixel_pitch_mm, **lens)
+
+
+def render_board_views(rig: StereoRig, board: Checkerboard, poses, *, spp: int = 64, seed: int = 0,
+                       bit_depth: int = 8, progress: bool = True):
+    """Render every pose in both cameras; yields :class:`BoardView` (noise-free images).
+
+    ``poses``: list of ``(R_world_from_board, t_world_from_board_mm)``. A pose whose board leaves an image
+    raises :class:`workbench.poses.BoardOutOfViewError` naming the view and camera.
+    """
+    corners_board = board.corners_board_mm()
+    for view, (R_wb, t_wb) in enumerate(tqdm(poses, desc="rendering board views", disable=not progress)):
+        try:
+            check_in_view(board_outline_mm(board) @ np.asarray(R_wb).T + t_wb, rig, what=f"board of view {view}")
+        except ValueError as err:
+            raise type(err)(str(err)) from None
+        surface = board.surface(R_wb, t_wb)
+        for k, side in enumerate(("left", "right")):
+            R_cw, t_cw = rig.pose(side)
+            R_cb, t_cb = R_cw @ R_wb, R_cw @ t_wb + t_cw
+            result = render_view(sensor_spec_for(rig, side), R_cw, t_cw, [surface], spp=spp,
+                                 seed=seed * 100003 + 2 * view + k, exposure_grey=EXPOSURE_GREY[bit_depth])
+            points = corners_board @ R_cb.T + t_cb
+            yield BoardView(view, side, result.image_grey, R_cb, t_cb, points, rig.camera(side).project(points))
+
+
+def write_checkerboard_dataset(rig: StereoRig, out_dir: Path, n_views: int, seed: int, *, spp: int = 64,
+                               board: Checkerboard | None = None, noise: SensorNoise | None = None,
+                               image_format: str = "png", progress: bool = True) -> dict:
+    """Render ``n_views`` random stereo poses and write images plus ``truth.json`` into ``out_dir``."""
+    board = board or Checkerboard()
+    noise = noise or SensorNoise(read_noise_grey=0.0, electrons_per_grey=None, bit_depth=8)
+    if image_format not in ("png", "tiff"):
+        raise ValueError(f"image format must be png or tiff, got {image_format!r}")
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    poses = random_board_poses(rig, board_outline_mm(board), n_views, seed)
+    images = []
+    for bv in render_board_views(rig, board, poses, spp=spp, seed=seed, bit_depth=noise.bit_depth or 8,
+                                 progress=progress):
+        name = f"{bv.camera}_{bv.view:03d}.{'png' if image_format == 'png' else 'tif'}"
+        noisy = noise.apply(bv.image_grey, seed=seed * 100003 + 2 * bv.view + (bv.camera == "right"))
+        if not cv2.imwrite(str(out_dir / name), to_image_dtype(noisy, noise.bit_depth or 8)):
+            raise OSError(f"could not write {out_dir / name}")
+        images.append({
+            "file": name, "camera": bv.camera, "view": bv.view,
+            "intrinsics": rig.camera(bv.camera).to_dict(),
+            "R_cam_from_board": bv.R_cam_from_board.tolist(),
+            "t_cam_from_board_mm": bv.t_cam_from_board_mm.tolist(),
+            "points_cam_mm": bv.points_cam_mm.tolist(),
+            "pixels": bv.pixels.tolist(),
+        })
+    truth = {
+        "about": "Ground truth of rendered checkerboard views. Pixels follow OpenCV (pixel centres at integer "
+                 "coordinates) and are computed with measurement.camera from points_cam_mm. Poses: "
+                 "X_cam = R_cam_from_board @ X_board + t_cam_from_board_mm; stereo: X_right = R @ X_left + T.",
+        "rig": {"name": rig.name, "R_right_from_left": np.asarray(rig.R_right_from_left).tolist(),
+                "T_right_from_left_mm": np.asarray(rig.T_right_from_left_mm).tolist(),
+                "pixel_pitch_mm": rig.pixel_pitch_mm},
+        "board": {"squares": list(board.squares), "inner_corners": list(board.inner_corners),
+                  "square_mm": board.square_mm, "corners_board_mm": board.corners_board_mm().tolist()},
+        "render": {"spp": spp, "seed": seed, "bit_depth": noise.bit_depth,
+                   "read_noise_grey": noise.read_noise_grey, "electrons_per_grey": noise.electrons_per_grey},
+        "images": images,
+    }
+    (out_dir / "truth.json").write_text(json.dumps(truth, indent=1))
+    return truth
