@@ -12,6 +12,7 @@ import numpy as np
 
 from scenes.backend import mi
 from scenes.camera import SensorSpec, sensor_dict
+from scenes.integrator import PLUGIN_NAME as INTEGRATOR
 from scenes.surfaces import TexturedSurface
 
 
@@ -51,9 +52,7 @@ def render_view(spec: SensorSpec, R_cam_from_world: np.ndarray, t_cam_from_world
         raise ValueError(f"spp must be >= 1, got {spp}")
     if not surfaces:
         raise ValueError("nothing to render: no surfaces given")
-    inner = {"type": "path", "max_depth": 1}  # emitters seen directly: no light transport noise
-    integrator = ({"type": "aov", "aovs": "uv:uv,pos:position,dd:depth", "integrator": inner} if truth else inner)
-    scene = {"type": "scene", "integrator": integrator,
+    scene = {"type": "scene", "integrator": {"type": INTEGRATOR, "truth": bool(truth)},
              "sensor": sensor_dict(spec, R_cam_from_world, t_cam_from_world_mm, spp, seed, crop, sampler)}
     for i, surface in enumerate(surfaces):
         scene[f"surface_{i}"] = surface.to_mitsuba(f"surface_{i}")
@@ -62,5 +61,10 @@ def render_view(spec: SensorSpec, R_cam_from_world: np.ndarray, t_cam_from_world
     image = out[..., 0] * np.float32(exposure_grey)
     if not truth:
         return RenderResult(image, None, None, None, tuple(int(c) for c in window))
-    uv, pos, depth = out[..., 1:3], out[..., 3:6], out[..., 6]
-    return RenderResult(image, pos, uv, None, tuple(int(c) for c in window))
+    # Channels: radiance, then TRUTH_CHANNELS; footprint averages include misses as zeros, so divide by
+    # coverage to get the mean over the part of the pixel that sees a surface.
+    coverage = out[..., 6]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        pos = np.where(coverage[..., None] > 0, out[..., 1:4] / coverage[..., None], np.nan).astype(np.float32)
+        uv = np.where(coverage[..., None] > 0, out[..., 4:6] / coverage[..., None], np.nan).astype(np.float32)
+    return RenderResult(image, pos, uv, coverage, tuple(int(c) for c in window))
