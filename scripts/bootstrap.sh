@@ -36,4 +36,4 @@ if [ ! -f "$stamp" ]; then
     .venv/bin/python -m pip install -q -e ".[test]"
     rm -f .venv/.installed-* && touch "$stamp"
 fi
-echo "[bootstrap] ready: $(.venv/bin/python -c 'import mitsuba, drjit; print("mitsuba", mitsuba.__version__, "drjit", drjit.__version__)' 2>/dev/null || echo 'mitsuba import deferred')"
+echo "[bootstrap] ready: $(.venv/bin/python -c 'from importlib.metadata import version as v; print("mitsuba", v("mitsuba"), "drjit", v("drjit"))')"
