@@ -56,7 +56,7 @@ class DepthOfFieldResult:
 
 def run_depth_of_field(fx: float = 10912.0, width: int = 2456, height: int = 2058, scale: float = 1.0,
                        pixel_pitch_mm: float = 0.00345, distance_mm: float = 376.0, object_tilt_deg: float = 35.0,
-                       f_number: float = 4.0, speckle_px: float = 5.0, texels_per_px: float = 3.0, spp: int = 64,
+                       f_number: float = 4.0, speckle_px: float = 5.0, texels_per_px: float = 2.5, spp: int = 64,
                        seed: int = 0) -> DepthOfFieldResult:
     """Render an oblique speckled plate through a Scheimpflug and an untilted thin-lens camera; compare MIG.
 
@@ -69,8 +69,8 @@ def run_depth_of_field(fx: float = 10912.0, width: int = 2456, height: int = 205
     beta = scheimpflug_sensor_tilt_deg(object_tilt_deg, v, F)
     px_mm = distance_mm / fx_s                          # pixel footprint at the plate centre
     theta = np.deg2rad(object_tilt_deg)
-    plate_w = 1.6 * w * px_mm / np.cos(theta)
-    plate = SpeckledPlate(width_mm=plate_w, height_mm=1.6 * h * px_mm, texel_mm=px_mm / texels_per_px,
+    plate_w = 1.3 * w * px_mm / np.cos(theta)
+    plate = SpeckledPlate(width_mm=plate_w, height_mm=1.3 * h * px_mm, texel_mm=px_mm / texels_per_px,
                           speckle_mm=speckle_px * px_mm, seed=seed)
     R_plate = np.array([[np.cos(theta), 0, np.sin(theta)], [0, 1, 0], [-np.sin(theta), 0, np.cos(theta)]])
     texture = plate.texture()
