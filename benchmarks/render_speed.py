@@ -14,9 +14,9 @@ import time
 import numpy as np
 
 from scenes.backend import VARIANT
-from scenes.camera import SensorSpec
 from scenes.render import render_view
 from scenes.specimens import SpeckledPlate
+from workbench.experiments.checkerboard_views import camera_to_sensor_spec
 from workbench.rigs import paper_rig
 
 
@@ -43,7 +43,7 @@ def main() -> None:
     print(f"variant {VARIANT}; image {cam.width} x {cam.height} px, {args.spp} spp; speckle texture "
           f"{texture.shape[1]} x {texture.shape[0]} texels generated in {t_texture:.2f} s")
     for name, lens in lenses.items():
-        spec = SensorSpec(**cam.to_dict(), pixel_pitch_mm=rig.pixel_pitch_mm, **lens)
+        spec = camera_to_sensor_spec(cam, rig.pixel_pitch_mm, **lens)
         t0 = time.perf_counter()
         render_view(spec, np.eye(3), np.zeros(3), [surface], spp=args.spp, seed=0)
         first = time.perf_counter() - t0

@@ -61,9 +61,24 @@ def scheimpflug_matrix(alpha_rad: float, beta_rad: float) -> np.ndarray:
     return np.array([[ca * cb, 0.0, sb], [0.0, ca * cb, -cb * sa], [0.0, 0.0, 1.0]])
 
 
-def tilt_homography(alpha_rad: float, beta_rad: float) -> np.ndarray:
-    """``A R_S^T``: maps distorted ideal-plane coordinates (x_d, y_d, 1) to tilted-plane ones, shape (3, 3)."""
-    return scheimpflug_matrix(alpha_rad, beta_rad) @ scheimpflug_rotation(alpha_rad, beta_rad).T
+#: Tilt parametrisations: the paper's rotation-matrix model and OpenCV's CALIB_TILTED_MODEL.
+TILT_MODELS = ("rmm", "opencv")
+
+
+def tilt_homography(alpha_rad: float, beta_rad: float, tilt_model: str = "rmm") -> np.ndarray:
+    """Map distorted ideal-plane coordinates (x_d, y_d, 1) to tilted-plane ones, shape (3, 3).
+
+    ``"rmm"`` (the paper): ``A R_S^T`` with ``R_S = R_Y(beta) R_X(alpha)``. ``"opencv"``: OpenCV's
+    ``matProjZ @ matRot`` with ``matRot = R_Y(-tau_y) R_X(-tau_x)``, ``tau_x = alpha``, ``tau_y = beta``. Both
+    intersect rays with a tilted plane; they differ in the order of the two rotations.
+    """
+    if tilt_model == "rmm":
+        return scheimpflug_matrix(alpha_rad, beta_rad) @ scheimpflug_rotation(alpha_rad, beta_rad).T
+    if tilt_model == "opencv":
+        M = rotation_y(-beta_rad) @ rotation_x(-alpha_rad)
+        proj = np.array([[M[2, 2], 0.0, -M[0, 2]], [0.0, M[2, 2], -M[1, 2]], [0.0, 0.0, 1.0]])
+        return proj @ M
+    raise ValueError(f"tilt_model must be one of {TILT_MODELS}, got {tilt_model!r}")
 
 
 @dataclass(frozen=True)
@@ -96,9 +111,14 @@ class ScheimpflugCamera:
     p2: float = 0.0
     width: int = 0
     height: int = 0
+    tilt_model: str = "rmm"
 
     def __post_init__(self):
+        if self.tilt_model not in TILT_MODELS:
+            raise ValueError(f"tilt_model must be one of {TILT_MODELS}, got {self.tilt_model!r}")
         for f in fields(self):
+            if f.name == "tilt_model":
+                continue
             value = getattr(self, f.name)
             if not np.isfinite(value):
                 raise ValueError(f"camera parameter {f.name} must be finite, got {value!r}")
@@ -128,8 +148,12 @@ class ScheimpflugCamera:
         return cls(**kwargs)
 
     def to_dict(self) -> dict:
-        """Plain dict with Table 1 names plus ``width`` and ``height``."""
+        """Plain dict with Table 1 names plus ``width``, ``height`` and ``tilt_model``."""
         return asdict(self)
+
+    def intrinsics(self) -> dict:
+        """Only the ten Table 1 parameters, ``{name: value}``."""
+        return {name: float(getattr(self, name)) for name in INTRINSIC_NAMES}
 
     @property
     def alpha_rad(self) -> float:
@@ -160,7 +184,7 @@ class ScheimpflugCamera:
             cx=(self.cx + 0.5) * scale - 0.5, cy=(self.cy + 0.5) * scale - 0.5,
             alpha_deg=self.alpha_deg, beta_deg=self.beta_deg,
             k1=self.k1, k2=self.k2, p1=self.p1, p2=self.p2,
-            width=int(round(self.width * scale)), height=int(round(self.height * scale)))
+            width=int(round(self.width * scale)), height=int(round(self.height * scale)), tilt_model=self.tilt_model)
 
     # ----------------------------------------------------------------------------------------------------
     def distort(self, xy_n: np.ndarray) -> np.ndarray:
@@ -210,7 +234,7 @@ class ScheimpflugCamera:
     def project_normalized(self, xy_n: np.ndarray) -> np.ndarray:
         """Ideal normalised coordinates (x_n, y_n), (N, 2) -> pixels (N, 2)."""
         xy_d = self.distort(xy_n)
-        H = tilt_homography(self.alpha_rad, self.beta_rad)
+        H = tilt_homography(self.alpha_rad, self.beta_rad, self.tilt_model)
         h = xy_d @ H[:, :2].T + H[:, 2]
         xt = h[..., 0] / h[..., 2]
         yt = h[..., 1] / h[..., 2]
@@ -233,7 +257,7 @@ class ScheimpflugCamera:
             raise ValueError(f"pixels must have shape (N, 2), got {pixels.shape}")
         xt = (pixels[..., 0] - self.cx) / self.fx
         yt = (pixels[..., 1] - self.cy) / self.fy
-        Hinv = np.linalg.inv(tilt_homography(self.alpha_rad, self.beta_rad))
+        Hinv = np.linalg.inv(tilt_homography(self.alpha_rad, self.beta_rad, self.tilt_model))
         h = np.stack([xt, yt], axis=-1) @ Hinv[:, :2].T + Hinv[:, 2]
         xy_d = h[..., :2] / h[..., 2:3]
         return self.undistort(xy_d)
@@ -279,12 +303,15 @@ def _undistort_newton(xy_d, k1, k2, p1, p2, tol, max_iter):
 def opencv_tilted_model(camera: ScheimpflugCamera) -> tuple[np.ndarray, np.ndarray]:
     """OpenCV's ``CALIB_TILTED_MODEL`` form of ``camera``: ``(K, dist)`` with 14 coefficients.
 
-    Exact only for a single-axis tilt (``alpha_deg == 0`` or ``beta_deg == 0``), where ``tau_x = alpha`` and
+    A camera with ``tilt_model="opencv"`` is OpenCV's model itself (exact for any tilt). For the paper's RMM it is
+    exact only for a single-axis tilt (``alpha_deg == 0`` or ``beta_deg == 0``), where ``tau_x = alpha`` and
     ``tau_y = beta``. With both angles non-zero the rotation orders differ (paper ``R_X(-a) R_Y(-b)``,
     OpenCV ``R_Y(-ty) R_X(-tx)``) and no choice of (tau_x, tau_y) reproduces the paper's model, so this
     raises ``ValueError`` instead of returning a silently different camera.
     """
-    if camera.alpha_deg != 0.0 and camera.beta_deg != 0.0:
+    if camera.tilt_model == "opencv":
+        pass  # OpenCV's own parametrisation: exact for any (tau_x, tau_y)
+    elif camera.alpha_deg != 0.0 and camera.beta_deg != 0.0:
         raise ValueError(
             "OpenCV's tilted model equals the paper's RMM only for a single-axis tilt; this camera has "
             f"alpha={camera.alpha_deg} deg and beta={camera.beta_deg} deg (the rotation orders differ)")

@@ -9,7 +9,11 @@ cd "$here"
 PYTHON="${PYTHON:-python3}"
 
 have_llvm19() {
-    ls /usr/lib/*/libLLVM-19*.so* /usr/lib/*/libLLVM.so.19* /usr/lib/llvm-19/lib/libLLVM*.so* >/dev/null 2>&1
+    local pattern
+    for pattern in '/usr/lib/*/libLLVM-19*.so*' '/usr/lib/*/libLLVM.so.19*' '/usr/lib/llvm-19/lib/libLLVM*.so*'; do
+        compgen -G "$pattern" >/dev/null && return 0
+    done
+    return 1
 }
 
 if ! have_llvm19; then

@@ -7,6 +7,7 @@ from scenes.camera import SensorSpec
 from scenes.render import render_view
 from scenes.specimens import SpeckledPlate
 from scenes.targets import Checkerboard
+from workbench.experiments.checkerboard_views import camera_to_sensor_spec
 from workbench.experiments.depth_of_field import scheimpflug_sensor_tilt_deg
 
 W, H, FX = 160, 120, 1500.0
@@ -32,7 +33,7 @@ def test_truth_channels_match_model_rays():
     R = np.array([[np.cos(theta), 0, np.sin(theta)], [0, 1, 0], [-np.sin(theta), 0, np.cos(theta)]])
     t = np.array([-25.0, -17.5, Z_MM])
     spp = 256
-    r = render_view(SensorSpec(**cam.to_dict()), np.eye(3), np.zeros(3), [board.surface(R, t)], spp=spp,
+    r = render_view(camera_to_sensor_spec(cam), np.eye(3), np.zeros(3), [board.surface(R, t)], spp=spp,
                     truth=True)
     jj, ii = np.meshgrid(np.arange(W), np.arange(H))
     inside = r.coverage == 1.0

@@ -13,6 +13,7 @@ from scenes.camera import SensorSpec
 from scenes.noise import SensorNoise, to_image_dtype
 from scenes.render import render_view
 from scenes.targets import Checkerboard
+from measurement.camera import ScheimpflugCamera
 from workbench.poses import check_in_view, random_board_poses
 from workbench.rigs import StereoRig
 
@@ -40,9 +41,17 @@ def board_outline_mm(board: Checkerboard) -> np.ndarray:
     return np.array([[x0 + m, y0 + m, 0], [x1 - m, y0 + m, 0], [x1 - m, y1 - m, 0], [x0 + m, y1 - m, 0]])
 
 
+def camera_to_sensor_spec(camera: ScheimpflugCamera, pixel_pitch_mm: float = 0.00345, **lens) -> SensorSpec:
+    """The renderer's description of a camera (same Table 1 names); the renderer builds the paper's RMM."""
+    if camera.tilt_model != "rmm":
+        raise ValueError(f"the renderer implements the paper's RMM tilt, not {camera.tilt_model!r}")
+    return SensorSpec(**camera.intrinsics(), width=camera.width, height=camera.height,
+                      pixel_pitch_mm=pixel_pitch_mm, **lens)
+
+
 def sensor_spec_for(rig: StereoRig, side: str, **lens) -> SensorSpec:
-    """The renderer's description of one of the rig's cameras (same Table 1 names)."""
-    return SensorSpec(**rig.camera(side).to_dict(), pixel_pitch_mm=rig.pixel_pitch_mm, **lens)
+    """The renderer's description of one of the rig's cameras."""
+    return camera_to_sensor_spec(rig.camera(side), rig.pixel_pitch_mm, **lens)
 
 
 def render_board_views(rig: StereoRig, board: Checkerboard, poses, *, spp: int = 64, seed: int = 0,
