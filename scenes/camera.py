@@ -204,6 +204,8 @@ def sensor_dict(spec: SensorSpec, R_cam_from_world, t_cam_from_world_mm, spp: in
         if x0 < 0 or y0 < 0 or w <= 0 or h <= 0 or x0 + w > spec.width or y0 + h > spec.height:
             raise ValueError(f"crop {crop} is outside the {spec.width} x {spec.height} sensor")
         film.update(crop_offset_x=x0, crop_offset_y=y0, crop_width=w, crop_height=h)
+    if sampler == "stratified" and round(spp ** 0.5) ** 2 != spp:
+        sampler = "independent"   # Mitsuba's stratified sampler would silently round spp up to a square
     d = {"type": PLUGIN_NAME, "to_world": mi.ScalarTransform4f(to_world_matrix(R_cam_from_world, t_cam_from_world_mm)),
          "film": film, "sampler": {"type": sampler, "sample_count": int(spp), "seed": int(seed)}}
     for key, value in spec.to_dict().items():

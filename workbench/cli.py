@@ -3,13 +3,19 @@
     workbench render checkerboard --rig paper --views N --seed S [--scale F] [--spp N] --out DIR
     workbench reproduce agreement [--rig paper] [--views N] [--scale F] [--spp N] [--seed S] --out DIR
     workbench reproduce depth-of-field [--scale F] [--f-number N] [--spp N] --out DIR
+    workbench reproduce calibration [--scale F] [--seed S] [--spp N] --out DIR
+    workbench calibrate --left GLOB --right GLOB --square-mm 5 --pattern 11x8 [--model rmm]
+                        [--tilt-guess-deg A,B] --out calib.json
 """
 from __future__ import annotations
 
 import argparse
 import json
 import sys
+import warnings
 from pathlib import Path
+
+import numpy as np
 
 
 def _positive_int(text: str) -> int:
@@ -52,6 +58,14 @@ def _parser() -> argparse.ArgumentParser:
     ag.add_argument("--scale", type=_scale, default=1.0)
     ag.add_argument("--spp", type=_positive_int, default=256)
     ag.add_argument("--out", type=Path, required=True)
+    rc = repsub.add_parser("calibration", help="the paper's calibration protocol on rendered views (Table 1, Fig 5)")
+    rc.add_argument("--scale", type=_scale, default=1.0)
+    rc.add_argument("--seed", type=int, default=0)
+    rc.add_argument("--spp", type=_positive_int, default=64)
+    rc.add_argument("--noise-grey", type=float, default=1.0)
+    rc.add_argument("--calibration-views", type=_positive_int, default=30)
+    rc.add_argument("--validation-views", type=_positive_int, default=20)
+    rc.add_argument("--out", type=Path, required=True)
     dof = repsub.add_parser("depth-of-field", help="MIG of an oblique speckled plate: Scheimpflug vs untilted")
     dof.add_argument("--scale", type=_scale, default=1.0)
     dof.add_argument("--object-tilt-deg", type=float, default=38.0)
@@ -59,7 +73,80 @@ def _parser() -> argparse.ArgumentParser:
     dof.add_argument("--spp", type=_positive_int, default=64)
     dof.add_argument("--seed", type=int, default=0)
     dof.add_argument("--out", type=Path, required=True)
+    cal = sub.add_parser("calibrate", help="stepwise Scheimpflug stereo calibration from checkerboard image pairs")
+    cal.add_argument("--left", required=True, help="glob of left images, e.g. 'views/left_*.png' (sorted)")
+    cal.add_argument("--right", required=True, help="glob of right images (sorted; paired with the left ones)")
+    cal.add_argument("--square-mm", type=float, default=5.0)
+    cal.add_argument("--pattern", type=_pattern, default=(11, 8), help="inner corners, COLSxROWS (default 11x8)")
+    cal.add_argument("--model", choices=("rmm", "opencv-tilt", "pinhole"), default="rmm")
+    cal.add_argument("--tilt-guess-deg", type=_pair, default=(0.0, 0.0),
+                     help="datasheet tilt (alpha,beta) of the left camera for step 1")
+    cal.add_argument("--tilt-guess-right-deg", type=_pair, default=None,
+                     help="right camera's (alpha,beta); default mirrors the left one: (alpha,-beta)")
+    cal.add_argument("--no-joint", action="store_true", help="skip the final joint refinement")
+    cal.add_argument("--out", type=Path, required=True, help="calibration JSON (a .yaml OpenCV export is written beside)")
     return p
+
+
+def _pattern(text: str) -> tuple[int, int]:
+    try:
+        a, b = (int(v) for v in text.lower().split("x"))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"pattern must look like 11x8, got {text!r}") from None
+    if a < 2 or b < 2:
+        raise argparse.ArgumentTypeError(f"pattern needs at least 2x2 inner corners, got {text!r}")
+    return a, b
+
+
+def _pair(text: str) -> tuple[float, float]:
+    try:
+        a, b = (float(v) for v in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected two numbers 'A,B', got {text!r}") from None
+    return a, b
+
+
+def _calibrate(args) -> int:
+    import glob
+
+    from measurement.calibration.images import calibrate_from_files
+    from measurement.calibration.io import export_opencv_yaml, save_calibration
+
+    left, right = sorted(glob.glob(args.left)), sorted(glob.glob(args.right))
+    if not left or not right:
+        raise ValueError(f"no images match --left {args.left!r}" if not left else f"no images match --right {args.right!r}")
+    guess_r = args.tilt_guess_right_deg or (args.tilt_guess_deg[0], -args.tilt_guess_deg[1])
+    cal, pairs = calibrate_from_files(left, right, square_mm=args.square_mm, pattern_size=args.pattern,
+                                      model=args.model, tilt_guess_left_deg=args.tilt_guess_deg,
+                                      tilt_guess_right_deg=guess_r, joint=not args.no_joint)
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    save_calibration(cal, args.out, extra={"images": {"left": pairs.left_files, "right": pairs.right_files,
+                                                       "dropped": pairs.dropped}})
+    export_opencv_yaml(cal, args.out.with_suffix(".yaml"))
+    print(f"calibrated {args.model} from {len(pairs.left_files)} stereo views ({len(pairs.dropped)} images dropped)")
+    for side in ("left", "right"):
+        c = getattr(cal, side)
+        params = ", ".join(f"{n}={getattr(c.camera, n):.5g}±{c.sigma[n]:.2g}" for n in ("fx", "fy", "cx", "cy",
+                           "alpha_deg", "beta_deg", "k1", "k2", "p1", "p2"))
+        print(f"  {side}: reprojection RMS {c.rms_px:.4f} px; {params}")
+    print(f"  stereo T = {np.round(cal.T_right_from_left_mm, 4).tolist()} mm; wrote {args.out} and "
+          f"{args.out.with_suffix('.yaml')}")
+    return 0
+
+
+def _reproduce_calibration(args) -> int:
+    from workbench.experiments.calibration import reproduce_calibration
+
+    m = reproduce_calibration(args.out, scale=args.scale, seed=args.seed, spp=args.spp, noise_grey=args.noise_grey,
+                              n_calibration=args.calibration_views, n_validation=args.validation_views)
+    for model, r in m["models"].items():
+        v, pf = r["validation_exact"], r["validation_plane_fit"]
+        print(f"{model:8s}: reprojection RMS {r['reprojection_rms_px']['left']:.4f} / "
+              f"{r['reprojection_rms_px']['right']:.4f} px; 3D RMS {v['rms_3d_aligned_um']:.3f} um aligned "
+              f"({v['rms_3d_unaligned_um']:.1f} um unaligned); projection {v['projection_rms_px']:.4f} px; plane fit "
+              f"RMSE {pf['rmse_um']:.2f} um, max {pf['max_abs_um']:.2f} um; calibration {r['calibration_s']} s")
+    print(f"report: {args.out / 'report.md'}")
+    return 0
 
 
 def _render_checkerboard(args) -> int:
@@ -131,12 +218,15 @@ def main(argv: list[str] | None = None) -> int:
     args = _parser().parse_args(argv)
     handlers = {("render", "checkerboard"): _render_checkerboard,
                 ("reproduce", "agreement"): _reproduce_agreement,
-                ("reproduce", "depth-of-field"): _reproduce_depth_of_field}
+                ("reproduce", "depth-of-field"): _reproduce_depth_of_field,
+                ("reproduce", "calibration"): _reproduce_calibration,
+                ("calibrate", None): _calibrate}
     try:
-        return handlers[(args.command, args.what)](args)
+        return handlers[(args.command, getattr(args, "what", None))](args)
     except (ValueError, OSError, RuntimeError) as err:
         # Bad input and missing system pieces get one clear line, never a traceback.
-        print(f"workbench {args.command} {args.what}: error: {err}", file=sys.stderr)
+        print(f"workbench {args.command} {getattr(args, 'what', '') or ''}: error: {err}".replace("  ", " "),
+              file=sys.stderr)
         return 2
 
 

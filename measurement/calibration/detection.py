@@ -53,7 +53,12 @@ def detect_checkerboard(image: np.ndarray, pattern_size: tuple[int, int] = (11, 
     """
     nx, ny = pattern_size
     gray = _to_gray8(image)
-    found, corners = cv2.findChessboardCornersSB(gray, (nx, ny), flags=cv2.CALIB_CB_ACCURACY | cv2.CALIB_CB_NORMALIZE_IMAGE)
+    # CALIB_CB_NORMALIZE_IMAGE (histogram equalisation) costs accuracy: 0.22 px instead of 0.035 px mean on
+    # rendered boards with 1 grey level of noise; use it only in the exhaustive second try.
+    found, corners = cv2.findChessboardCornersSB(gray, (nx, ny), flags=cv2.CALIB_CB_ACCURACY)
+    if not found:
+        found, corners = cv2.findChessboardCornersSB(
+            gray, (nx, ny), flags=cv2.CALIB_CB_ACCURACY | cv2.CALIB_CB_EXHAUSTIVE | cv2.CALIB_CB_NORMALIZE_IMAGE)
     if not found:
         return None
     corners = corners.reshape(-1, 2).astype(float)

@@ -76,15 +76,16 @@ def render_board_views(rig: StereoRig, board: Checkerboard, poses, *, spp: int =
 
 def write_checkerboard_dataset(rig: StereoRig, out_dir: Path, n_views: int, seed: int, *, spp: int = 64,
                                board: Checkerboard | None = None, noise: SensorNoise | None = None,
-                               image_format: str = "png", progress: bool = True) -> dict:
-    """Render ``n_views`` random stereo poses and write images plus ``truth.json`` into ``out_dir``."""
+                               image_format: str = "png", progress: bool = True, poses=None) -> dict:
+    """Render ``n_views`` random stereo poses (or the given ``poses``) and write images plus ``truth.json``."""
     board = board or Checkerboard()
     noise = noise or SensorNoise(read_noise_grey=0.0, electrons_per_grey=None, bit_depth=8)
     if image_format not in ("png", "tiff"):
         raise ValueError(f"image format must be png or tiff, got {image_format!r}")
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
-    poses = random_board_poses(rig, board_outline_mm(board), n_views, seed)
+    if poses is None:
+        poses = random_board_poses(rig, board_outline_mm(board), n_views, seed)
     images = []
     for bv in render_board_views(rig, board, poses, spp=spp, seed=seed, bit_depth=noise.bit_depth or 8,
                                  progress=progress):

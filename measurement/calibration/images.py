@@ -1,0 +1,86 @@
+"""Calibrate a stereo pair from image files (real or rendered): read, detect, pair, calibrate."""
+from __future__ import annotations
+
+import warnings
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+from tqdm import tqdm
+
+from measurement.calibration.detection import board_points_mm, detect_checkerboard
+from measurement.calibration.stepwise import CalibrationError, StereoCalibration, calibrate_stereo
+
+#: Fewest stereo views the stepwise procedure accepts (Zhang's initialisation needs >= 3 homographies).
+MIN_VIEWS = 3
+
+
+@dataclass
+class DetectedPairs:
+    """Corners found in both images of each usable pair."""
+
+    left_files: list[str]
+    right_files: list[str]
+    points_left: np.ndarray     # (V, N, 2)
+    points_right: np.ndarray    # (V, N, 2)
+    image_size: tuple[int, int]
+    dropped: list[str]          # files whose board was not found (their pair is dropped)
+
+
+def read_grey(path: str | Path) -> np.ndarray:
+    """Read an 8/16-bit image as a 2-D array; a clear error names the file that cannot be read."""
+    image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    if image is None:
+        raise ValueError(f"cannot read image {path}")
+    if image.ndim == 3:
+        image = cv2.cvtColor(image[..., :3], cv2.COLOR_BGR2GRAY)
+    return image
+
+
+def detect_pairs(left_files, right_files, pattern_size=(11, 8), progress: bool = True) -> DetectedPairs:
+    """Detect the board in every left/right pair (paired in the given order)."""
+    left_files, right_files = [str(f) for f in left_files], [str(f) for f in right_files]
+    if not left_files:
+        raise CalibrationError("no left images given (check the --left pattern)")
+    if len(left_files) != len(right_files):
+        raise CalibrationError(f"{len(left_files)} left images but {len(right_files)} right images: they must pair up")
+    size = None
+    pts_l, pts_r, used_l, used_r, dropped = [], [], [], [], []
+    for fl, fr in tqdm(list(zip(left_files, right_files)), desc="detecting boards", disable=not progress):
+        images = []
+        for f in (fl, fr):
+            img = read_grey(f)
+            if size is None:
+                size = (img.shape[1], img.shape[0], f)
+            elif (img.shape[1], img.shape[0]) != size[:2]:
+                raise CalibrationError(f"image {f} is {img.shape[1]} x {img.shape[0]} px but {size[2]} is "
+                                       f"{size[0]} x {size[1]} px: all images must have one size")
+            images.append(img)
+        corners = [detect_checkerboard(img, pattern_size) for img in images]
+        missing = [f for f, c in zip((fl, fr), corners) if c is None]
+        if missing:
+            warnings.warn(f"board not found in {', '.join(missing)}: dropping the pair ({Path(fl).name}, "
+                          f"{Path(fr).name})", stacklevel=2)
+            dropped.extend(missing)
+            continue
+        pts_l.append(corners[0])
+        pts_r.append(corners[1])
+        used_l.append(fl)
+        used_r.append(fr)
+    if len(pts_l) < MIN_VIEWS:
+        raise CalibrationError(f"only {len(pts_l)} of {len(left_files)} stereo pairs show the "
+                               f"{pattern_size[0]} x {pattern_size[1]}-corner board in both images; at least "
+                               f"{MIN_VIEWS} are needed (check --pattern and the images)")
+    return DetectedPairs(used_l, used_r, np.array(pts_l), np.array(pts_r), size[:2], dropped)
+
+
+def calibrate_from_files(left_files, right_files, *, square_mm: float, pattern_size=(11, 8), model: str = "rmm",
+                         tilt_guess_left_deg=(0.0, 0.0), tilt_guess_right_deg=(0.0, 0.0), joint: bool = True,
+                         progress: bool = True) -> tuple[StereoCalibration, DetectedPairs]:
+    """Detect the board in every pair and run the stepwise stereo calibration."""
+    pairs = detect_pairs(left_files, right_files, pattern_size, progress)
+    cal = calibrate_stereo(pairs.points_left, pairs.points_right, board_points_mm(pattern_size, square_mm),
+                           pairs.image_size, model=model, tilt_guess_left_deg=tilt_guess_left_deg,
+                           tilt_guess_right_deg=tilt_guess_right_deg, joint=joint)
+    return cal, pairs
