@@ -6,6 +6,8 @@ Per camera:
   step 2  refine {fx, fy, alpha, beta, poses};
   step 3  refine {fx, fy, cx, cy, poses};
   step 4  refine {fx, fy, k1, k2, p1, p2, poses};
+  final   (``refine_all``, default) all of the model's intrinsics and the poses together (steps 2-4 alone stop
+          ~0.3 px short of the least-squares solution with Table 1's distortion, see :func:`calibrate_camera`);
 then for the pair:
   step 5  the right camera's pose relative to the left, initialised from every view by eq (11) (written here
           for ``X_right = R X_left + T``: ``R = R_r R_l^T``, ``T = t_r - R t_l``) and refined with the left board
@@ -291,7 +293,7 @@ def _stereo_residual_fn(left, right, board_mm, pts_l, pts_r, shared_names):
 
 
 def _stereo_init(cal_l: CameraCalibration, cal_r: CameraCalibration) -> tuple[np.ndarray, np.ndarray]:
-    """Eq (11) for every view, combined: chordal mean of the rotations, mean of the translations."""
+    """Eq (11) for every view, combined: chordal mean of the rotations, median of the translations."""
     Rl = Rotation.from_rotvec(cal_l.rvecs).as_matrix()
     Rr = Rotation.from_rotvec(cal_r.rvecs).as_matrix()
     Rs = np.einsum("vij,vkj->vik", Rr, Rl)                       # R_r R_l^T
