@@ -124,19 +124,24 @@ def _check_views(image_points: np.ndarray, board_mm: np.ndarray, minimum: int, w
 
 
 # ------------------------------------------------------------------------------------------------------------
+def _mono_residual_fn(camera, free, board_mm, image_points):
+    """Residual of one camera; x = [free intrinsics..., (rvec, t) of each view]."""
+    V, k = len(image_points), len(free)
+
+    def residual(x):
+        cam = _with(camera, free, x[:k])
+        poses = x[k:].reshape(V, 6)
+        return (project_views(cam, poses[:, :3], poses[:, 3:], board_mm) - image_points).ravel()
+
+    return residual
+
+
 def _refine_camera(camera, free, rvecs, tvecs, board_mm, image_points):
     """Least squares over the ``free`` intrinsics and all poses; returns (camera, rvecs, tvecs, result)."""
     V, N = image_points.shape[:2]
     x0 = np.concatenate([[getattr(camera, n) for n in free], np.hstack([rvecs, tvecs]).ravel()])
     k = len(free)
-
-    def residual(x):
-        cam = _with(camera, free, x[:k])
-        poses = x[k:].reshape(V, 6)
-        r = project_views(cam, poses[:, :3], poses[:, 3:], board_mm) - image_points
-        return r.ravel()
-
-    res = _solve(residual, x0, k, _mono_rows(V, N))
+    res = _solve(_mono_residual_fn(camera, free, board_mm, image_points), x0, k, _mono_rows(V, N))
     cam = _with(camera, free, res.x[:k])
     poses = res.x[k:].reshape(V, 6)
     return cam, poses[:, :3].copy(), poses[:, 3:].copy(), res
@@ -204,12 +209,7 @@ def _finish_camera(camera, rvecs, tvecs, board_mm, image_points, model, steps) -
     V, N = image_points.shape[:2]
     x = np.concatenate([[getattr(camera, n) for n in free], np.hstack([rvecs, tvecs]).ravel()])
     k = len(free)
-
-    def residual(xx):
-        cam = _with(camera, free, xx[:k])
-        poses = xx[k:].reshape(V, 6)
-        return (project_views(cam, poses[:, :3], poses[:, 3:], board_mm) - image_points).ravel()
-
+    residual = _mono_residual_fn(camera, free, board_mm, image_points)
     r = residual(x)
     J = _block_fd_jacobian(residual, x, k, _mono_rows(V, N))
     sig = _uncertainty(J, r, len(x))
