@@ -12,7 +12,6 @@ from __future__ import annotations
 import argparse
 import json
 import sys
-import warnings
 from pathlib import Path
 
 import numpy as np
@@ -225,8 +224,8 @@ def main(argv: list[str] | None = None) -> int:
         return handlers[(args.command, getattr(args, "what", None))](args)
     except (ValueError, OSError, RuntimeError) as err:
         # Bad input and missing system pieces get one clear line, never a traceback.
-        print(f"workbench {args.command} {getattr(args, 'what', '') or ''}: error: {err}".replace("  ", " "),
-              file=sys.stderr)
+        where = " ".join(filter(None, ("workbench", args.command, getattr(args, "what", None))))
+        print(f"{where}: error: {err}", file=sys.stderr)
         return 2
 
 
