@@ -136,12 +136,12 @@ def _mono_residual_fn(camera, free, board_mm, image_points):
     return residual
 
 
-def _refine_camera(camera, free, rvecs, tvecs, board_mm, image_points, tol=1e-10):
+def _refine_camera(camera, free, rvecs, tvecs, board_mm, image_points):
     """Least squares over the ``free`` intrinsics and all poses; returns (camera, rvecs, tvecs, result)."""
     V, N = image_points.shape[:2]
     x0 = np.concatenate([[getattr(camera, n) for n in free], np.hstack([rvecs, tvecs]).ravel()])
     k = len(free)
-    res = _solve(_mono_residual_fn(camera, free, board_mm, image_points), x0, k, _mono_rows(V, N), tol)
+    res = _solve(_mono_residual_fn(camera, free, board_mm, image_points), x0, k, _mono_rows(V, N))
     cam = _with(camera, free, res.x[:k])
     poses = res.x[k:].reshape(V, 6)
     return cam, poses[:, :3].copy(), poses[:, 3:].copy(), res
@@ -190,9 +190,7 @@ def calibrate_camera(image_points: np.ndarray, board_mm: np.ndarray, image_size:
     for step_name, free in STEPS:
         if model == "pinhole":
             free = tuple(n for n in free if n not in ("alpha_deg", "beta_deg"))
-        # With the final refinement to follow, steps 2-4 only need to bring the parameters near the optimum.
-        camera, rvecs, tvecs, _ = _refine_camera(camera, free, rvecs, tvecs, board_mm, image_points,
-                                                 tol=1e-6 if refine_all else 1e-10)
+        camera, rvecs, tvecs, _ = _refine_camera(camera, free, rvecs, tvecs, board_mm, image_points)
         steps.append((step_name, free, _rms(project_views(camera, rvecs, tvecs, board_mm) - image_points)))
     if refine_all:
         free = _free_intrinsics(model)
@@ -258,7 +256,7 @@ def _stereo_rows(n_views, n_points):
     return [np.concatenate([r, half + r]) for r in _mono_rows(n_views, n_points)]
 
 
-def _solve(residual, x0, n_shared, view_rows, tol=1e-10):
+def _solve(residual, x0, n_shared, view_rows):
     """Levenberg-Marquardt (MINPACK, via least_squares) with the block finite-difference Jacobian.
 
     MINPACK's LM copes with the near-degenerate tilt/principal-point directions far better than the
@@ -268,7 +266,7 @@ def _solve(residual, x0, n_shared, view_rows, tol=1e-10):
     """
     fn = lambda x: np.nan_to_num(residual(x), nan=1e6)  # noqa: E731  (a point behind the camera: huge residual)
     return least_squares(fn, x0, jac=lambda x: _block_fd_jacobian(fn, x, n_shared, view_rows), method="lm",
-                         xtol=tol, ftol=tol, gtol=tol, x_scale="jac", max_nfev=400)
+                         xtol=1e-10, ftol=1e-10, gtol=1e-10, x_scale="jac", max_nfev=400)
 
 
 # ------------------------------------------------------------------------------------------------------------
