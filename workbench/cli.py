@@ -64,6 +64,7 @@ def _parser() -> argparse.ArgumentParser:
     rc.add_argument("--noise-grey", type=float, default=1.0)
     rc.add_argument("--calibration-views", type=_positive_int, default=30)
     rc.add_argument("--validation-views", type=_positive_int, default=20)
+    rc.add_argument("--refine-corners", action="store_true", help="saddle-fit refinement of OpenCV's corners")
     rc.add_argument("--out", type=Path, required=True)
     dof = repsub.add_parser("depth-of-field", help="MIG of an oblique speckled plate: Scheimpflug vs untilted")
     dof.add_argument("--scale", type=_scale, default=1.0)
@@ -83,6 +84,7 @@ def _parser() -> argparse.ArgumentParser:
     cal.add_argument("--tilt-guess-right-deg", type=_pair, default=None,
                      help="right camera's (alpha,beta); default mirrors the left one: (alpha,-beta)")
     cal.add_argument("--no-joint", action="store_true", help="skip the final joint refinement")
+    cal.add_argument("--refine-corners", action="store_true", help="saddle-fit refinement of OpenCV's corners")
     cal.add_argument("--out", type=Path, required=True, help="calibration JSON (a .yaml OpenCV export is written beside)")
     return p
 
@@ -117,7 +119,8 @@ def _calibrate(args) -> int:
     guess_r = args.tilt_guess_right_deg or (args.tilt_guess_deg[0], -args.tilt_guess_deg[1])
     cal, pairs = calibrate_from_files(left, right, square_mm=args.square_mm, pattern_size=args.pattern,
                                       model=args.model, tilt_guess_left_deg=args.tilt_guess_deg,
-                                      tilt_guess_right_deg=guess_r, joint=not args.no_joint)
+                                      tilt_guess_right_deg=guess_r, joint=not args.no_joint,
+                                      refine_corners=args.refine_corners)
     args.out.parent.mkdir(parents=True, exist_ok=True)
     save_calibration(cal, args.out, extra={"images": {"left": pairs.left_files, "right": pairs.right_files,
                                                        "dropped": pairs.dropped}})
@@ -137,7 +140,8 @@ def _reproduce_calibration(args) -> int:
     from workbench.experiments.calibration import reproduce_calibration
 
     m = reproduce_calibration(args.out, scale=args.scale, seed=args.seed, spp=args.spp, noise_grey=args.noise_grey,
-                              n_calibration=args.calibration_views, n_validation=args.validation_views)
+                              n_calibration=args.calibration_views, n_validation=args.validation_views,
+                              refine_corners=args.refine_corners)
     for model, r in m["models"].items():
         v, pf = r["validation_exact"], r["validation_plane_fit"]
         print(f"{model:8s}: reprojection RMS {r['reprojection_rms_px']['left']:.4f} / "

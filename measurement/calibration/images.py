@@ -9,7 +9,7 @@ import cv2
 import numpy as np
 from tqdm import tqdm
 
-from measurement.calibration.detection import board_points_mm, detect_checkerboard
+from measurement.calibration.detection import board_points_mm, detect_checkerboard, refine_corners_saddle
 from measurement.calibration.stepwise import CalibrationError, StereoCalibration, calibrate_stereo
 
 #: Fewest stereo views the stepwise procedure accepts (Zhang's initialisation needs >= 3 homographies).
@@ -38,8 +38,13 @@ def read_grey(path: str | Path) -> np.ndarray:
     return image
 
 
-def detect_pairs(left_files, right_files, pattern_size=(11, 8), progress: bool = True) -> DetectedPairs:
-    """Detect the board in every left/right pair (paired in the given order)."""
+def detect_pairs(left_files, right_files, pattern_size=(11, 8), progress: bool = True,
+                 refine: bool = False) -> DetectedPairs:
+    """Detect the board in every left/right pair (paired in the given order).
+
+    ``refine``: also fit a blurred saddle model around every corner (:func:`refine_corners_saddle`; ~3x lower
+    corner error than OpenCV's on full-resolution renders, ~5 s per 5 MP image).
+    """
     left_files, right_files = [str(f) for f in left_files], [str(f) for f in right_files]
     if not left_files:
         raise CalibrationError("no left images given (check the --left pattern)")
@@ -58,6 +63,9 @@ def detect_pairs(left_files, right_files, pattern_size=(11, 8), progress: bool =
                                        f"{size[0]} x {size[1]} px: all images must have one size")
             images.append(img)
         corners = [detect_checkerboard(img, pattern_size) for img in images]
+        if refine:
+            corners = [None if c is None else refine_corners_saddle(img, c, pattern_size)
+                       for img, c in zip(images, corners)]
         missing = [f for f, c in zip((fl, fr), corners) if c is None]
         if missing:
             warnings.warn(f"board not found in {', '.join(missing)}: dropping the pair ({Path(fl).name}, "
@@ -77,9 +85,9 @@ def detect_pairs(left_files, right_files, pattern_size=(11, 8), progress: bool =
 
 def calibrate_from_files(left_files, right_files, *, square_mm: float, pattern_size=(11, 8), model: str = "rmm",
                          tilt_guess_left_deg=(0.0, 0.0), tilt_guess_right_deg=(0.0, 0.0), joint: bool = True,
-                         progress: bool = True) -> tuple[StereoCalibration, DetectedPairs]:
+                         progress: bool = True, refine_corners: bool = False) -> tuple[StereoCalibration, DetectedPairs]:
     """Detect the board in every pair and run the stepwise stereo calibration."""
-    pairs = detect_pairs(left_files, right_files, pattern_size, progress)
+    pairs = detect_pairs(left_files, right_files, pattern_size, progress, refine=refine_corners)
     cal = calibrate_stereo(pairs.points_left, pairs.points_right, board_points_mm(pattern_size, square_mm),
                            pairs.image_size, model=model, tilt_guess_left_deg=tilt_guess_left_deg,
                            tilt_guess_right_deg=tilt_guess_right_deg, joint=joint)
