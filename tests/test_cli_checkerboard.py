@@ -47,10 +47,10 @@ def test_truth_is_consistent_between_cameras(dataset):
 
 
 def test_board_is_where_truth_says(dataset):
-    """The dark/light pattern in the image matches the truth: the pixel between corners 0, 1, 11, 12 is
-    inside the first dark square... (a flipped texture or swapped camera would fail)."""
+    """The printed pattern sits where the truth says: the centre of the square between corners 0, 1, 11 and 12
+    (and every square with even row + column) is dark, the others light (a flipped texture or swapped
+    camera would fail)."""
     out, truth = dataset
-    board = truth["board"]
     for im in truth["images"]:
         image = cv2.imread(str(out / im["file"]), cv2.IMREAD_GRAYSCALE).astype(float)
         pix = np.array(im["pixels"]).reshape(8, 11, 2)

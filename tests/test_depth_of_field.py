@@ -1,5 +1,4 @@
 """Thin lens + Scheimpflug: an oblique speckled plate is sharper across the field with a tilted sensor."""
-import numpy as np
 import pytest
 
 from measurement.image_quality import mean_intensity_gradient
