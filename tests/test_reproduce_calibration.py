@@ -55,3 +55,16 @@ def test_pinhole_model_reported_side_by_side(metrics):
     assert p["estimate"]["left"]["alpha_deg"] == 0.0 and p["estimate"]["left"]["beta_deg"] == 0.0
     assert p["sigma"]["left"]["alpha_deg"] == 0.0          # held fixed, not estimated
     assert p["validation_exact"]["valid"] == p["validation_exact"]["points"]
+
+
+def test_identical_renders_are_reused_and_others_are_not(tmp_path):
+    """A second run with the same rig, views, seed, spp and noise reuses the images; a new seed re-renders."""
+    kwargs = dict(scale=SCALE, spp=4, noise_grey=1.0, n_calibration=4, n_validation=2, progress=False,
+                  models=("rmm",))
+    first = reproduce_calibration(tmp_path, seed=5, **kwargs)
+    assert first["render_s"] != "reused"
+    again = reproduce_calibration(tmp_path, seed=5, **kwargs)
+    assert again["render_s"] == "reused"
+    assert again["models"]["rmm"]["reprojection_rms_px"] == first["models"]["rmm"]["reprojection_rms_px"]
+    other = reproduce_calibration(tmp_path, seed=6, **kwargs)
+    assert other["render_s"] != "reused"

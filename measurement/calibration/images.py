@@ -39,11 +39,12 @@ def read_grey(path: str | Path) -> np.ndarray:
 
 
 def detect_pairs(left_files, right_files, pattern_size=(11, 8), progress: bool = True,
-                 refine: bool = False) -> DetectedPairs:
+                 refine: bool = False, min_views: int = MIN_VIEWS) -> DetectedPairs:
     """Detect the board in every left/right pair (paired in the given order).
 
     ``refine``: also fit a blurred saddle model around every corner (:func:`refine_corners_saddle`; ~3x lower
-    corner error than OpenCV's on full-resolution renders, ~5 s per 5 MP image).
+    corner error than OpenCV's on full-resolution renders, ~5 s per 5 MP image). ``min_views``: fewest usable
+    pairs accepted (calibration needs 3; validation sets may be smaller).
     """
     left_files, right_files = [str(f) for f in left_files], [str(f) for f in right_files]
     if not left_files:
@@ -76,10 +77,10 @@ def detect_pairs(left_files, right_files, pattern_size=(11, 8), progress: bool =
         pts_r.append(corners[1])
         used_l.append(fl)
         used_r.append(fr)
-    if len(pts_l) < MIN_VIEWS:
+    if len(pts_l) < min_views:
         raise CalibrationError(f"only {len(pts_l)} of {len(left_files)} stereo pairs show the "
                                f"{pattern_size[0]} x {pattern_size[1]}-corner board in both images; at least "
-                               f"{MIN_VIEWS} are needed (check --pattern and the images)")
+                               f"{min_views} are needed (check --pattern and the images)")
     return DetectedPairs(used_l, used_r, np.array(pts_l), np.array(pts_r), size[:2], dropped)
 
 
