@@ -87,3 +87,11 @@ def test_render_needs_samples_and_surfaces():
         render_view(spec, np.eye(3), np.zeros(3), [Checkerboard().surface(np.eye(3), [0, 0, 300])], spp=0)
     with pytest.raises(ValueError, match="no surfaces"):
         render_view(spec, np.eye(3), np.zeros(3), [], spp=1)
+
+
+def test_paper_rig_geometry_matches_the_paper():
+    """Table 1's R, T put the right camera at about (+144.4, +0.3, +29.9) mm and the axes meet ~376 mm ahead."""
+    rig = paper_rig(1.0)
+    assert np.allclose(rig.camera_centre_mm("right"), [144.4, 0.3, 29.9], atol=0.1)
+    meet = rig.optical_axes_meeting_point_mm()
+    assert abs(meet[2] - 376.0) < 1.0 and np.hypot(meet[0], meet[1]) < 1.0

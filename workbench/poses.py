@@ -5,6 +5,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from measurement.camera import ScheimpflugCamera
+from measurement.stereo import closest_approach
 from workbench.rigs import StereoRig
 
 
@@ -12,23 +13,15 @@ class BoardOutOfViewError(ValueError):
     """A target pose puts part of the target outside an image."""
 
 
-def common_view_centre_mm(rig: StereoRig, distance_mm: float | None = None) -> np.ndarray:
-    """A point both image centres look at: midpoint of the two centre rays' closest approach (left frame)."""
+def common_view_centre_mm(rig: StereoRig) -> np.ndarray:
+    """A point both image centres look at: midpoint of the two centre rays' closest approach (left frame, mm)."""
     centres, dirs = [], []
     for side in ("left", "right"):
         cam = rig.camera(side)
-        R, t = rig.pose(side)
-        d_cam = cam.rays(np.array([[(cam.width - 1) / 2, (cam.height - 1) / 2]]))[0]
-        centres.append(-R.T @ t)
-        dirs.append(R.T @ d_cam)
-    (c1, c2), (d1, d2) = centres, dirs
-    w = c1 - c2
-    a, b, c, d, e = d1 @ d1, d1 @ d2, d2 @ d2, d1 @ w, d2 @ w
-    den = a * c - b * b
-    p = 0.5 * ((c1 + (b * e - c * d) / den * d1) + (c2 + (a * e - b * d) / den * d2))
-    if distance_mm is not None:
-        p = c1 + d1 * (distance_mm / d1[2])
-    return p
+        R, _ = rig.pose(side)
+        centres.append(rig.camera_centre_mm(side))
+        dirs.append(R.T @ cam.rays(np.array([[(cam.width - 1) / 2, (cam.height - 1) / 2]]))[0])
+    return closest_approach(centres[0], dirs[0][None], centres[1], dirs[1][None])[0][0]
 
 
 def check_in_view(points_world_mm: np.ndarray, rig: StereoRig, margin_px: float = 2.0, what: str = "board") -> None:

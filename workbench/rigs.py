@@ -13,6 +13,7 @@ import cv2
 import numpy as np
 
 from measurement.camera import ScheimpflugCamera
+from measurement.stereo import closest_approach
 
 #: Assumed pixel pitch: the paper gives none; 3.45 um is typical of 2456 x 2058 CCDs (DESIGN.md §4).
 DEFAULT_PIXEL_PITCH_MM = 0.00345
@@ -67,15 +68,9 @@ class StereoRig:
 
     def optical_axes_meeting_point_mm(self) -> np.ndarray:
         """Midpoint of the shortest segment between the two optical axes (left frame, mm)."""
-        c1, c2 = self.camera_centre_mm("left"), self.camera_centre_mm("right")
-        d1 = np.array([0.0, 0.0, 1.0])
-        d2 = self.pose("right")[0].T @ np.array([0.0, 0.0, 1.0])
-        w = c1 - c2
-        a, b, c, d, e = d1 @ d1, d1 @ d2, d2 @ d2, d1 @ w, d2 @ w
-        den = a * c - b * b
-        s = (b * e - c * d) / den
-        u = (a * e - b * d) / den
-        return 0.5 * ((c1 + s * d1) + (c2 + u * d2))
+        axis = np.array([[0.0, 0.0, 1.0]])
+        return closest_approach(self.camera_centre_mm("left"), axis, self.camera_centre_mm("right"),
+                                axis @ self.pose("right")[0])[0][0]
 
 
 def paper_rig(scale: float = 1.0, pixel_pitch_mm: float = DEFAULT_PIXEL_PITCH_MM) -> StereoRig:
