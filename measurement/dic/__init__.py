@@ -1,0 +1,19 @@
+"""Subset-based 2-D digital image correlation (the paper's §3): ZNSSD, IC-GN with first- or second-order
+shape functions, bicubic/biquintic B-spline interpolation, seeds by ZNCC search and reliability-guided
+propagation. One module per algorithm:
+
+- :mod:`.bspline` — prefilter and evaluation of the interpolant;
+- :mod:`.shape_functions` — warps and their inverse composition;
+- :mod:`.icgn` — the IC-GN iteration for one subset, and a parallel batch;
+- :mod:`.initial` — ZNCC search for seeds (with rotations), the :class:`Seed` other guessers produce;
+- :mod:`.guide` — reliability-guided propagation over the POI grid;
+- :mod:`.grid` — POIs from ROI, mask, subset and step;
+- :mod:`.correlate` — the entry point :func:`correlate` and :class:`DICResult`.
+"""
+from .correlate import DICResult, DICSettings, correlate
+from .grid import PoiGrid, poi_grid
+from .initial import Seed
+from .shape_functions import PARAMETER_NAMES
+from .status import Status
+
+__all__ = ["DICResult", "DICSettings", "PARAMETER_NAMES", "PoiGrid", "Seed", "Status", "correlate", "poi_grid"]

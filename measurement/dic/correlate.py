@@ -1,0 +1,418 @@
+"""Two-image subset DIC: the public entry point that ties grid, seeds, propagation and IC-GN together.
+
+``correlate(reference, deformed, settings)`` returns a :class:`DICResult` with, for every point of interest,
+the displacement, the shape-function parameters, the ZNCC, the iteration count and a :class:`Status`.
+A point that fails has NaN numbers and says why in its status.
+"""
+from __future__ import annotations
+
+import csv
+import time
+import warnings
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import numpy as np
+from scipy import ndimage
+
+from . import bspline
+from .grid import PoiGrid, check_subset_size, poi_grid
+from .guide import band_regions, propagate
+from .icgn import correlate_batch
+from .initial import DEFAULT_SEED_ANGLES_DEG, Seed, zncc_search
+from .shape_functions import N_PARAMETERS, PARAMETER_NAMES, SECOND_ORDER
+from .status import CONVERGED, NOT_REACHED, Status
+
+
+@dataclass(frozen=True)
+class DICSettings:
+    """Settings of a 2-D DIC run.
+
+    Attributes
+    ----------
+    subset_size : int
+        Odd subset width 2M + 1, px.
+    step : int
+        POI grid spacing, px.
+    order : int
+        Shape function: 1 (affine, 6 parameters) or 2 (quadratic, 12).
+    interpolation : str
+        'biquintic' (the paper's) or 'bicubic' B-spline.
+    max_iterations : int
+        IC-GN iteration cap.
+    tolerance_px : float
+        Convergence threshold on the increment at the subset edge, px.
+    min_zncc : float
+        Converged points below this ZNCC get LOW_CORRELATION (NaN) and do not pass their guess on.
+    min_subset_std : float or None
+        Subsets whose grey-level standard deviation is below this are LOW_TEXTURE. None: 0.5 % of the
+        reference image's grey range (0.5-99.5 percentiles).
+    search_radius_px : int
+        Half-width of the seed search window, px (the largest displacement a seed finds from its centre guess).
+    seed_angles_deg : tuple of float
+        Rotations tried by the seed search (deg).
+    regions : int
+        Vertical bands propagated independently (and in parallel), each from its own seed.
+    """
+
+    subset_size: int = 33
+    step: int = 8
+    order: int = 1
+    interpolation: str = "biquintic"
+    max_iterations: int = 50
+    tolerance_px: float = 1e-3
+    min_zncc: float = 0.8
+    min_subset_std: float | None = None
+    search_radius_px: int = 32
+    seed_angles_deg: tuple = DEFAULT_SEED_ANGLES_DEG
+    regions: int = 4
+
+    def __post_init__(self):
+        check_subset_size(self.subset_size)
+        if self.order not in (1, 2):
+            raise ValueError(f"order must be 1 or 2, got {self.order!r}")
+        bspline.degree_of(self.interpolation)
+        if int(self.max_iterations) < 1:
+            raise ValueError(f"max_iterations must be >= 1, got {self.max_iterations}")
+        if not (np.isfinite(self.tolerance_px) and self.tolerance_px > 0):
+            raise ValueError(f"tolerance_px must be positive, got {self.tolerance_px}")
+        if not -1.0 <= self.min_zncc <= 1.0:
+            raise ValueError(f"min_zncc must be in [-1, 1], got {self.min_zncc}")
+        if int(self.search_radius_px) < 1:
+            raise ValueError(f"search_radius_px must be >= 1, got {self.search_radius_px}")
+        if int(self.regions) < 1:
+            raise ValueError(f"regions must be >= 1, got {self.regions}")
+
+
+@dataclass
+class DICResult:
+    """Per-point output of :func:`correlate` (arrays over the N points of interest).
+
+    Attributes
+    ----------
+    x, y : ndarray of int64, shape (N,)
+        Reference POI, px (column, row).
+    u, v : ndarray of float64, shape (N,)
+        Displacement, px (NaN unless converged).
+    parameters : ndarray of float64, shape (N, 12)
+        Shape-function parameters, named by :data:`PARAMETER_NAMES` (second-order terms zero for order 1).
+    zncc : ndarray of float64, shape (N,)
+    iterations : ndarray of int64, shape (N,)
+    status : ndarray of int8, shape (N,)
+        :class:`Status` codes.
+    sssig : ndarray of float64, shape (N, 2)
+        Sum of squared subset intensity gradients along x and y, grey^2/px^2 (Pan 2008).
+    grid_index : ndarray of int64, shape (N, 2)
+        (row, col) of each point in the POI grid of shape ``grid_shape``.
+    grid_shape : tuple of int
+    settings : DICSettings
+    timings_s : dict
+        Wall time of the stages, s.
+    """
+
+    x: np.ndarray
+    y: np.ndarray
+    u: np.ndarray
+    v: np.ndarray
+    parameters: np.ndarray
+    zncc: np.ndarray
+    iterations: np.ndarray
+    status: np.ndarray
+    sssig: np.ndarray
+    grid_index: np.ndarray
+    grid_shape: tuple
+    settings: DICSettings
+    timings_s: dict = field(default_factory=dict)
+
+    @property
+    def converged(self) -> np.ndarray:
+        """Boolean mask of the points with numbers."""
+        return self.status == CONVERGED
+
+    def status_counts(self) -> dict[str, int]:
+        """Number of points per status name."""
+        codes, counts = np.unique(self.status, return_counts=True)
+        return {Status(int(c)).name: int(n) for c, n in zip(codes, counts)}
+
+    def predicted_std_px(self, noise_sigma_grey: float) -> tuple[np.ndarray, np.ndarray]:
+        """Noise-limited standard deviation of u and v per point, px: sqrt(2) sigma / sqrt(SSSIG) (Pan 2008).
+
+        Valid for Gaussian noise of ``noise_sigma_grey`` in both images and a translation-dominated match.
+        """
+        with np.errstate(divide="ignore"):
+            return (np.sqrt(2.0) * noise_sigma_grey / np.sqrt(self.sssig[:, 0]),
+                    np.sqrt(2.0) * noise_sigma_grey / np.sqrt(self.sssig[:, 1]))
+
+    def to_grid(self, values: np.ndarray, fill: float = np.nan) -> np.ndarray:
+        """Scatter per-point ``values`` (N, ...) onto the POI grid (n_rows, n_cols, ...)."""
+        values = np.asarray(values)
+        out = np.full(self.grid_shape + values.shape[1:], fill, dtype=np.result_type(values, type(fill)))
+        out[self.grid_index[:, 0], self.grid_index[:, 1]] = values
+        return out
+
+    def to_csv(self, path: str | Path) -> Path:
+        """Write ``x,y,u,v,zncc,iterations,status,status_name`` and the shape parameters, one row per point."""
+        path = Path(path)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        names = [Status(int(s)).name.lower() for s in self.status]
+        with path.open("w", newline="") as handle:
+            writer = csv.writer(handle)
+            writer.writerow(["x", "y", "u", "v", "zncc", "iterations", "status", "status_name",
+                             *PARAMETER_NAMES[1:6], *PARAMETER_NAMES[7:]])
+            for k in range(self.x.size):
+                p = self.parameters[k]
+                writer.writerow([int(self.x[k]), int(self.y[k]), _fmt(self.u[k]), _fmt(self.v[k]),
+                                 _fmt(self.zncc[k]), int(self.iterations[k]), int(self.status[k]), names[k],
+                                 *(_fmt(val) for val in p[1:6]), *(_fmt(val) for val in p[7:])])
+        return path
+
+
+def _fmt(value: float) -> str:
+    return "nan" if not np.isfinite(value) else f"{value:.9g}"
+
+
+# ---------------------------------------------------------------------------------------------------------
+
+@dataclass(frozen=True)
+class PreparedImage:
+    """An image ready for DIC: finite values, B-spline coefficients, invalid-pixel mask."""
+
+    values: np.ndarray          # float64, NaN where invalid (dilated)
+    spline: bspline.BSplineImage
+    invalid: np.ndarray | None  # bool (rows, cols), dilated by the interpolation support; None if all valid
+
+
+def prepare_image(image: np.ndarray, interpolation: str, gradients: bool, name: str) -> PreparedImage:
+    """Check an image and compute its B-spline coefficients.
+
+    NaN/inf pixels are allowed: they are filled with the nearest valid value before the prefilter, and every
+    pixel within reach of them (interpolation support plus the prefilter's decay) is marked invalid, so
+    subsets touching them get the INVALID_IMAGE status.
+    """
+    array = np.asarray(image)
+    if array.ndim != 2:
+        raise ValueError(f"{name} image must be 2-D grey (rows, cols), got shape {array.shape}")
+    if not np.issubdtype(array.dtype, np.number) or np.iscomplexobj(array):
+        raise ValueError(f"{name} image must be real-valued, got dtype {array.dtype}")
+    degree = bspline.degree_of(interpolation)
+    if min(array.shape) < 2 * (degree + 1):
+        raise ValueError(f"{name} image {array.shape} is too small")
+    values = array.astype(np.float64, copy=True)
+    finite = np.isfinite(values)
+    invalid = None
+    if not finite.all():
+        if not finite.any():
+            raise ValueError(f"{name} image has no finite pixel")
+        _, (rows, cols) = ndimage.distance_transform_edt(~finite, return_indices=True)
+        filled = values[rows, cols]
+        # Prefilter poles decay as 0.43^k (quintic): 8 px more brings a unit jump below 1e-3 grey.
+        invalid = ndimage.binary_dilation(~finite, iterations=degree + 8)
+        spline = bspline.prefilter(filled, degree, gradients=gradients)
+        values[invalid] = np.nan
+    else:
+        spline = bspline.prefilter(values, degree, gradients=gradients)
+    return PreparedImage(values, spline, invalid)
+
+
+def _default_min_std(values: np.ndarray) -> float:
+    low, high = np.nanpercentile(values, [0.5, 99.5])
+    return max(0.005 * float(high - low), 1e-12)
+
+
+def _seed_candidates(grid: PoiGrid, region: np.ndarray, region_id: int, seed_points_xy) -> list[tuple[int, int]]:
+    """Grid nodes of a region to try as seeds: the user's points first, then outward from the region centre."""
+    rows, cols = np.nonzero(grid.active & (region == region_id))
+    if rows.size == 0:
+        return []
+    candidates = []
+    for x, y in seed_points_xy or ():
+        distance = (grid.x[rows, cols] - x) ** 2 + (grid.y[rows, cols] - y) ** 2
+        k = int(np.argmin(distance))
+        if distance[k] <= (grid.step ** 2) * 2:
+            candidates.append((int(rows[k]), int(cols[k])))
+    centre_r, centre_c = rows.mean(), cols.mean()
+    order = np.argsort((rows - centre_r) ** 2 + (cols - centre_c) ** 2, kind="stable")
+    candidates.extend((int(rows[k]), int(cols[k])) for k in order)
+    return candidates
+
+
+def find_seeds(reference: np.ndarray, deformed: np.ndarray, grid: PoiGrid, region: np.ndarray, n_regions: int,
+               settings: DICSettings, seed_points_xy=None, seed_guess_px=(0.0, 0.0),
+               tries_per_region: int = 8) -> list[tuple[int, int, Seed]]:
+    """ZNCC-searched seeds: up to ``tries_per_region`` candidates per region, best-scoring first."""
+    seeds = []
+    half = grid.half
+    for region_id in range(n_regions):
+        found = []
+        for r, c in _seed_candidates(grid, region, region_id, seed_points_xy)[:tries_per_region]:
+            seed = zncc_search(reference, deformed, int(grid.x[r, c]), int(grid.y[r, c]), half,
+                               int(settings.search_radius_px), seed_guess_px, tuple(settings.seed_angles_deg))
+            if seed is not None and np.isfinite(seed.zncc):
+                found.append((r, c, seed))
+        found.sort(key=lambda item: -item[2].zncc)
+        seeds.extend(found)
+    return seeds
+
+
+def correlate(reference: np.ndarray, deformed: np.ndarray, settings: DICSettings | None = None, *,
+              roi: tuple[int, int, int, int] | None = None, mask: np.ndarray | None = None,
+              seed_points_xy: list[tuple[float, float]] | None = None,
+              seed_guess_px: tuple[float, float] = (0.0, 0.0),
+              seeds: list[Seed] | None = None,
+              initial_parameters: np.ndarray | None = None,
+              grid: PoiGrid | None = None) -> DICResult:
+    """Subset DIC between two grey images.
+
+    Parameters
+    ----------
+    reference, deformed : ndarray, shape (rows, cols)
+        Grey images of the same shape (any real dtype; NaN pixels are allowed and flag the subsets touching
+        them).
+    settings : DICSettings, optional
+    roi : (x0, y0, x1, y1), optional
+        Rectangle of POI centres, px.
+    mask : ndarray of bool, optional
+        POI centres must fall where it is True.
+    seed_points_xy : list of (x, y), optional
+        Preferred seed positions, px (the nearest grid node is used); a ZNCC search gives their guess.
+    seed_guess_px : (u, v)
+        Centre of the seed search window, px (for displacements larger than ``search_radius_px``).
+    seeds : list of Seed, optional
+        Seeds with their own initial guesses (feature matches, epipolar search, ...); they replace the ZNCC
+        search. Each must sit on a grid node.
+    initial_parameters : ndarray, shape (N, 12) or (N, 2), optional
+        An initial guess for *every* active POI (row-major order of the grid); no propagation then: each point
+        runs IC-GN from its own guess. (N, 2) gives (u, v) only.
+    grid : PoiGrid, optional
+        Use this grid instead of building one from ``roi``/``mask``/settings.
+
+    Returns
+    -------
+    DICResult
+    """
+    settings = settings or DICSettings()
+    timings = {}
+    start = time.perf_counter()
+    reference = np.asarray(reference)
+    deformed = np.asarray(deformed)
+    if reference.ndim == 2 and deformed.ndim == 2 and reference.shape != deformed.shape:
+        raise ValueError(f"reference image {reference.shape} and deformed image {deformed.shape} differ in size")
+    ref = prepare_image(reference, settings.interpolation, True, "reference")
+    dfm = prepare_image(deformed, settings.interpolation, False, "deformed")
+    timings["prefilter"] = time.perf_counter() - start
+
+    if grid is None:
+        grid = poi_grid(reference.shape, settings.subset_size, settings.step, roi=roi, mask=mask)
+    elif grid.subset_size != settings.subset_size:
+        raise ValueError(f"grid subset size {grid.subset_size} differs from settings.subset_size "
+                         f"{settings.subset_size}")
+    half = grid.half
+    degree = ref.spline.degree
+    min_std = settings.min_subset_std if settings.min_subset_std is not None else _default_min_std(ref.values)
+    bad = dfm.invalid if dfm.invalid is not None else np.zeros((1, 1), dtype=bool)
+    check_bad = dfm.invalid is not None
+    n_rows, n_cols = grid.shape
+    params = np.full((n_rows, n_cols, N_PARAMETERS), np.nan)
+    status = np.full((n_rows, n_cols), NOT_REACHED, dtype=np.int64)
+    zncc = np.full((n_rows, n_cols), np.nan)
+    iterations = np.zeros((n_rows, n_cols), dtype=np.int64)
+    sssig = np.full((n_rows, n_cols, 2), np.nan)
+    active_rc = np.argwhere(grid.active)
+
+    t = time.perf_counter()
+    if initial_parameters is not None:
+        guesses = _check_initial_parameters(initial_parameters, active_rc.shape[0])
+        if settings.order == 1:
+            guesses[:, SECOND_ORDER] = 0.0
+        xs = grid.x[grid.active].astype(np.int64)
+        ys = grid.y[grid.active].astype(np.int64)
+        st = np.empty(xs.size, dtype=np.int64)
+        zn = np.empty(xs.size)
+        it = np.empty(xs.size, dtype=np.int64)
+        ss = np.empty((xs.size, 2))
+        correlate_batch(ref.values, ref.spline.grad_x, ref.spline.grad_y, dfm.spline.coefficients, degree, bad,
+                        check_bad, xs, ys, half, settings.order, min_std, guesses, int(settings.max_iterations),
+                        float(settings.tolerance_px), st, zn, it, ss)
+        st[(st == CONVERGED) & ~(zn >= settings.min_zncc)] = int(Status.LOW_CORRELATION)
+        r, c = active_rc[:, 0], active_rc[:, 1]
+        params[r, c] = guesses
+        status[r, c] = st
+        zncc[r, c] = zn
+        iterations[r, c] = it
+        sssig[r, c] = ss
+        timings["icgn"] = time.perf_counter() - t
+    else:
+        region = band_regions(grid.shape, settings.regions)
+        n_regions = int(region.max()) + 1
+        if seeds is None:
+            found = find_seeds(ref.values, dfm.values, grid, region, n_regions, settings, seed_points_xy,
+                               seed_guess_px)
+        else:
+            found = [(*_node_of(grid, s), s) for s in seeds]
+        timings["seeds"] = time.perf_counter() - t
+        if not found:
+            warnings.warn("DIC: no seed found (every candidate subset is out of the image or untextured)",
+                          stacklevel=2)
+        t = time.perf_counter()
+        if found:
+            seed_rc = np.array([(r, c) for r, c, _ in found], dtype=np.int64)
+            seed_p = np.array([s.parameters for _, _, s in found], dtype=np.float64)
+            if settings.order == 1:
+                seed_p[:, SECOND_ORDER] = 0.0
+            propagate(ref.values, ref.spline.grad_x, ref.spline.grad_y, dfm.spline.coefficients, degree, bad,
+                      check_bad, grid.x.astype(np.int64), grid.y.astype(np.int64), grid.active, region, n_regions,
+                      seed_rc, seed_p, half, settings.order, min_std, int(settings.max_iterations),
+                      float(settings.tolerance_px), float(settings.min_zncc), params, status, zncc, iterations,
+                      sssig, False)
+            unreached = grid.active & (status == NOT_REACHED)
+            if n_regions > 1 and unreached.any() and (status == CONVERGED).any():
+                propagate(ref.values, ref.spline.grad_x, ref.spline.grad_y, dfm.spline.coefficients, degree,
+                          bad, check_bad, grid.x.astype(np.int64), grid.y.astype(np.int64), grid.active,
+                          np.zeros(grid.shape, dtype=np.int64), 1, seed_rc[:0], seed_p[:0], half, settings.order,
+                          min_std, int(settings.max_iterations), float(settings.tolerance_px),
+                          float(settings.min_zncc), params, status, zncc, iterations, sssig, True)
+        timings["propagation"] = time.perf_counter() - t
+
+    r, c = active_rc[:, 0], active_rc[:, 1]
+    out_status = status[r, c]
+    out_params = params[r, c]
+    out_params[out_status != CONVERGED] = np.nan
+    out_zncc = zncc[r, c]
+    timings["total"] = time.perf_counter() - start
+    return DICResult(
+        x=grid.x[r, c].astype(np.int64), y=grid.y[r, c].astype(np.int64),
+        u=out_params[:, 0].copy(), v=out_params[:, 6].copy(), parameters=out_params, zncc=out_zncc,
+        iterations=iterations[r, c], status=out_status.astype(np.int8), sssig=sssig[r, c],
+        grid_index=active_rc.astype(np.int64), grid_shape=grid.shape, settings=settings, timings_s=timings)
+
+
+def _node_of(grid: PoiGrid, seed: Seed) -> tuple[int, int]:
+    hits = np.argwhere((grid.x == seed.x) & (grid.y == seed.y) & grid.active)
+    if hits.size == 0:
+        raise ValueError(f"seed at ({seed.x}, {seed.y}) px is not an active node of the POI grid")
+    return int(hits[0, 0]), int(hits[0, 1])
+
+
+def _check_initial_parameters(initial, count: int) -> np.ndarray:
+    initial = np.asarray(initial, dtype=np.float64)
+    if initial.ndim != 2 or initial.shape[0] != count or initial.shape[1] not in (2, N_PARAMETERS):
+        raise ValueError(f"initial_parameters must have shape ({count}, 2) or ({count}, {N_PARAMETERS}) for the "
+                         f"{count} points of interest, got {initial.shape}")
+    if not np.isfinite(initial).all():
+        raise ValueError("initial_parameters contains NaN or infinite values")
+    if initial.shape[1] == 2:
+        full = np.zeros((count, N_PARAMETERS))
+        full[:, 0] = initial[:, 0]
+        full[:, 6] = initial[:, 1]
+        return full
+    return initial.copy()
+
+
+def settings_dict(settings: DICSettings) -> dict:
+    """Settings as a JSON-friendly dict."""
+    out = asdict(settings)
+    out["seed_angles_deg"] = list(settings.seed_angles_deg)
+    return out
+
+
+__all__ = ["DICSettings", "DICResult", "correlate", "find_seeds", "prepare_image", "settings_dict"]

@@ -1,0 +1,164 @@
+"""Reliability-guided propagation of IC-GN over a POI grid (Pan 2009, "Reliability-guided digital image
+correlation for image deformation measurement", Appl. Opt. 48, 1535-1542).
+
+From each seed, points are processed in order of decreasing ZNCC of the converged point they are reached
+from: a max-heap holds converged points, the best is popped and its four grid neighbours are computed by
+IC-GN starting from its warp carried over to their position (:func:`.shape_functions.shift_parameters`).
+Large and spatially varying displacements are followed as long as they vary smoothly on the grid scale,
+and a bad point (low correlation, failure) never passes its guess on.
+
+The grid is cut into ``regions`` vertical bands that propagate independently, each from its own seeds, so
+the bands run on separate threads. The cut does not depend on the number of threads, so results are the
+same on any machine. Points a band could not reach from its own seeds are then reached, in a last
+single-region pass, from the converged points around them.
+"""
+from __future__ import annotations
+
+import heapq
+
+import numba
+import numpy as np
+
+from .icgn import iterate, prepare_reference
+from .shape_functions import shift_parameters
+from .status import CONVERGED, LOW_CORRELATION, NOT_REACHED
+
+
+@numba.njit(cache=True)
+def _solve_point(image, grad_x, grad_y, coef, degree, bad, check_bad, x, y, half, order, min_std, p,
+                 max_iterations, tolerance_px, min_zncc):
+    npar = 6 if order == 1 else 12
+    n = 2 * half + 1
+    f = np.empty(n * n)
+    fx = np.empty(n * n)
+    fy = np.empty(n * n)
+    hinv = np.empty((npar, npar))
+    a = np.empty(npar)
+    s = np.empty(npar)
+    status, delta_f, sx, sy = prepare_reference(image, grad_x, grad_y, x, y, half, order, min_std, f, fx, fy,
+                                                hinv, a, s)
+    if status != CONVERGED:
+        return status, np.nan, 0, sx, sy
+    status, zncc, iterations = iterate(coef, degree, bad, check_bad, x, y, half, order, f, fx, fy, delta_f, hinv,
+                                       a, s, p, max_iterations, tolerance_px)
+    if status == CONVERGED and not zncc >= min_zncc:
+        status = LOW_CORRELATION
+    return status, zncc, iterations, sx, sy
+
+
+@numba.njit(cache=True)
+def _propagate_region(image, grad_x, grad_y, coef, degree, bad, check_bad, grid_x, grid_y, active, region,
+                      region_id, seed_rc, seed_p, half, order, min_std, max_iterations, tolerance_px, min_zncc,
+                      params, status, zncc, iterations, sssig, resume):
+    n_rows, n_cols = grid_x.shape
+    heap = [(0.0, 0)]
+    heap.pop()
+    guess = np.empty(12)
+    for k in range(seed_rc.shape[0]):
+        r, c = seed_rc[k, 0], seed_rc[k, 1]
+        if region[r, c] != region_id or status[r, c] == CONVERGED:
+            continue
+        for j in range(12):
+            guess[j] = seed_p[k, j]
+        st, score, it, sx, sy = _solve_point(image, grad_x, grad_y, coef, degree, bad, check_bad, grid_x[r, c],
+                                             grid_y[r, c], half, order, min_std, guess, max_iterations,
+                                             tolerance_px, min_zncc)
+        # A seed that fails leaves its point free for a neighbour to reach later.
+        if st == CONVERGED:
+            params[r, c, :] = guess
+            status[r, c] = st
+            zncc[r, c] = score
+            iterations[r, c] = it
+            sssig[r, c, 0] = sx
+            sssig[r, c, 1] = sy
+            heapq.heappush(heap, (-score, r * n_cols + c))
+    if resume:
+        # Continue from points already converged (e.g. by another region) that border unreached ones.
+        for r0 in range(n_rows):
+            for c0 in range(n_cols):
+                if status[r0, c0] != CONVERGED:
+                    continue
+                for neighbour in range(4):
+                    r = r0 + (neighbour == 1) - (neighbour == 0)
+                    c = c0 + (neighbour == 3) - (neighbour == 2)
+                    if 0 <= r < n_rows and 0 <= c < n_cols and active[r, c] and status[r, c] == NOT_REACHED \
+                            and region[r, c] == region_id:
+                        heapq.heappush(heap, (-zncc[r0, c0], r0 * n_cols + c0))
+                        break
+    source = np.empty(12)
+    while len(heap) > 0:
+        _, index = heapq.heappop(heap)
+        r0 = index // n_cols
+        c0 = index % n_cols
+        for source_k in range(12):
+            source[source_k] = params[r0, c0, source_k]
+        for neighbour in range(4):
+            r = r0 + (neighbour == 1) - (neighbour == 0)
+            c = c0 + (neighbour == 3) - (neighbour == 2)
+            if r < 0 or c < 0 or r >= n_rows or c >= n_cols:
+                continue
+            if not active[r, c] or region[r, c] != region_id or status[r, c] != NOT_REACHED:
+                continue
+            shift_parameters(source, float(grid_x[r, c] - grid_x[r0, c0]), float(grid_y[r, c] - grid_y[r0, c0]),
+                             guess)
+            st, score, it, sx, sy = _solve_point(image, grad_x, grad_y, coef, degree, bad, check_bad,
+                                                 grid_x[r, c], grid_y[r, c], half, order, min_std, guess,
+                                                 max_iterations, tolerance_px, min_zncc)
+            status[r, c] = st
+            zncc[r, c] = score
+            iterations[r, c] = it
+            sssig[r, c, 0] = sx
+            sssig[r, c, 1] = sy
+            if st == CONVERGED:
+                params[r, c, :] = guess
+                heapq.heappush(heap, (-score, r * n_cols + c))
+
+
+@numba.njit(cache=True, parallel=True)
+def propagate(image, grad_x, grad_y, coef, degree, bad, check_bad, grid_x, grid_y, active, region, n_regions,
+              seed_rc, seed_p, half, order, min_std, max_iterations, tolerance_px, min_zncc,
+              params, status, zncc, iterations, sssig, resume):
+    """Reliability-guided IC-GN over every region in parallel.
+
+    Parameters
+    ----------
+    image, grad_x, grad_y : ndarray of float64, shape (rows, cols)
+        Reference image and its spline gradients at pixel centres.
+    coef : ndarray of float64, shape (rows, cols)
+        B-spline coefficients of the deformed image.
+    degree : int
+        3 or 5.
+    bad : ndarray of bool, shape (rows, cols); check_bad : bool
+        Invalid deformed pixels (dilated by the spline support), checked when ``check_bad``.
+    grid_x, grid_y : ndarray of int64, shape (n_rows, n_cols)
+        POI positions, px.
+    active : ndarray of bool, shape (n_rows, n_cols)
+    region : ndarray of int64, shape (n_rows, n_cols)
+        Region index of each node, 0 .. n_regions - 1.
+    seed_rc : ndarray of int64, shape (n_seeds, 2)
+        Grid (row, col) of the seeds, in order of preference.
+    seed_p : ndarray of float64, shape (n_seeds, 12)
+        Initial parameters of the seeds.
+    params : ndarray of float64, shape (n_rows, n_cols, 12)
+        Out: converged parameters (untouched elsewhere).
+    status : ndarray of int64, shape (n_rows, n_cols)
+        In: NOT_REACHED on every node to compute. Out: status per node.
+    zncc, iterations, sssig
+        Out, per node.
+    resume : bool
+        Also start from the converged nodes that border unreached ones in their region (no seed needed):
+        used for a last pass with a single region, so bands whose own seeds failed are reached from their
+        neighbours.
+    """
+    for region_id in numba.prange(n_regions):
+        _propagate_region(image, grad_x, grad_y, coef, degree, bad, check_bad, grid_x, grid_y, active, region,
+                          region_id, seed_rc, seed_p, half, order, min_std, max_iterations, tolerance_px,
+                          min_zncc, params, status, zncc, iterations, sssig, resume)
+
+
+def band_regions(shape: tuple[int, int], n_regions: int) -> np.ndarray:
+    """Cut a grid of ``shape`` (n_rows, n_cols) into ``n_regions`` vertical bands; returns region ids."""
+    n_rows, n_cols = shape
+    n_regions = max(1, min(int(n_regions), n_cols))
+    column_region = (np.arange(n_cols) * n_regions) // n_cols
+    return np.broadcast_to(column_region[None, :], (n_rows, n_cols)).astype(np.int64).copy()

@@ -1,0 +1,517 @@
+"""Inverse-compositional Gauss-Newton (IC-GN) subset matching with the ZNSSD criterion (numba).
+
+For a square reference subset of ``(2M + 1)^2`` pixels centred on an integer point of interest, IC-GN
+(Baker & Matthews 2004; Pan, Li & Tong 2013, "Fast, robust and accurate digital image correlation
+calculation without redundant computations", Exp. Mech. 53, 1277-1289) minimises
+
+    C(dp) = sum [ (f(W(xi; dp)) - f_m) / Df  -  (g(W(xi; p)) - g_m) / Dg ]^2         (ZNSSD)
+
+over the increment ``dp`` applied to the *reference* subset, then updates ``W(p) <- W(p) o W(dp)^-1``.
+Because the increment lives on the reference side, the Jacobian ``J = grad f . dW/dp`` and the Hessian
+``H = sum J^T J`` are computed once per point; an iteration costs one interpolation of the deformed image per
+subset pixel. The Gauss-Newton step is
+
+    dp = -H^-1 sum J^T [ (f - f_m) - (Df / Dg) (g - g_m) ],
+
+and since ``sum J^T (f - f_m)`` and ``sum J^T`` are also constants, one pass over the subset that accumulates
+``sum g``, ``sum g^2``, ``sum f g`` and ``sum J^T g`` gives both the step and the ZNCC of the current warp.
+
+Convergence: the increment, expressed as the largest displacement it causes anywhere on the subset edge
+(``|du| + M |dux| + M |duy| + M^2/2 (|duxx| + 2|duxy| + |duyy|)``, same for v, combined in quadrature), falls
+below ``tolerance_px``.
+
+Reference gradients are those of the B-spline interpolant at the pixel centres (:mod:`.bspline`), so the
+linearisation matches the interpolant the deformed image is sampled with.
+"""
+from __future__ import annotations
+
+import numba
+import numpy as np
+
+from .shape_functions import compose_inverse
+from .status import (CONVERGED, DIVERGED, INVALID_IMAGE, LOW_TEXTURE, MAX_ITERATIONS, OUT_OF_IMAGE)
+
+#: Largest |u| or |v| update (px) accepted in one iteration before the point is declared diverged.
+MAX_STEP_PX = 50.0
+
+
+# ---------------------------------------------------------------------------------------------------------
+# Interpolation of the deformed image, unrolled for speed (weights as in bspline.quintic/cubic_weights).
+# ---------------------------------------------------------------------------------------------------------
+
+@numba.njit(inline="always", fastmath=True)
+def _quintic_w(t):
+    t2 = t * t
+    w5 = (1.0 / 120.0) * t * t2 * t2
+    s2 = t2 - t
+    s4 = s2 * s2
+    h = t - 0.5
+    q = s2 * (s2 - 3.0)
+    w0 = (1.0 / 24.0) * (1.0 / 5.0 + s2 + s4) - w5
+    a0 = (1.0 / 24.0) * (s2 * (s2 - 5.0) + 46.0 / 5.0)
+    a1 = (-1.0 / 12.0) * h * (q + 4.0)
+    b0 = (1.0 / 16.0) * (9.0 / 5.0 - q)
+    b1 = (1.0 / 24.0) * h * (s4 - s2 - 5.0)
+    return w0, b0 + b1, a0 + a1, a0 - a1, b0 - b1, w5
+
+
+@numba.njit(inline="always", fastmath=True)
+def _quintic_value(cf, cols, x, y):
+    """Biquintic value at (x, y) from the flattened coefficients ``cf`` (support inside, x, y >= 2)."""
+    ix = int(x)
+    iy = int(y)
+    x0, x1, x2, x3, x4, x5 = _quintic_w(x - ix)
+    y0, y1, y2, y3, y4, y5 = _quintic_w(y - iy)
+    # Unsigned flat indices: numba then emits no negative-index wraparound per load.
+    b = np.uint64((iy - 2) * cols + ix - 2)
+    stride = np.uint64(cols)
+    r = cf[b] * x0 + cf[b + 1] * x1 + cf[b + 2] * x2 + cf[b + 3] * x3 + cf[b + 4] * x4 + cf[b + 5] * x5
+    acc = y0 * r
+    b += stride
+    r = cf[b] * x0 + cf[b + 1] * x1 + cf[b + 2] * x2 + cf[b + 3] * x3 + cf[b + 4] * x4 + cf[b + 5] * x5
+    acc += y1 * r
+    b += stride
+    r = cf[b] * x0 + cf[b + 1] * x1 + cf[b + 2] * x2 + cf[b + 3] * x3 + cf[b + 4] * x4 + cf[b + 5] * x5
+    acc += y2 * r
+    b += stride
+    r = cf[b] * x0 + cf[b + 1] * x1 + cf[b + 2] * x2 + cf[b + 3] * x3 + cf[b + 4] * x4 + cf[b + 5] * x5
+    acc += y3 * r
+    b += stride
+    r = cf[b] * x0 + cf[b + 1] * x1 + cf[b + 2] * x2 + cf[b + 3] * x3 + cf[b + 4] * x4 + cf[b + 5] * x5
+    acc += y4 * r
+    b += stride
+    r = cf[b] * x0 + cf[b + 1] * x1 + cf[b + 2] * x2 + cf[b + 3] * x3 + cf[b + 4] * x4 + cf[b + 5] * x5
+    return acc + y5 * r
+
+
+@numba.njit(inline="always", fastmath=True)
+def _cubic_w(t):
+    w3 = (1.0 / 6.0) * t * t * t
+    w0 = (1.0 / 6.0) + 0.5 * t * (t - 1.0) - w3
+    w2 = t + w0 - 2.0 * w3
+    return w0, 1.0 - w0 - w2 - w3, w2, w3
+
+
+@numba.njit(inline="always", fastmath=True)
+def _cubic_value(cf, cols, x, y):
+    """Bicubic value at (x, y) from the flattened coefficients ``cf`` (support inside, x, y >= 1)."""
+    ix = int(x)
+    iy = int(y)
+    x0, x1, x2, x3 = _cubic_w(x - ix)
+    y0, y1, y2, y3 = _cubic_w(y - iy)
+    b = np.uint64((iy - 1) * cols + ix - 1)
+    stride = np.uint64(cols)
+    r = cf[b] * x0 + cf[b + 1] * x1 + cf[b + 2] * x2 + cf[b + 3] * x3
+    acc = y0 * r
+    b += stride
+    r = cf[b] * x0 + cf[b + 1] * x1 + cf[b + 2] * x2 + cf[b + 3] * x3
+    acc += y1 * r
+    b += stride
+    r = cf[b] * x0 + cf[b + 1] * x1 + cf[b + 2] * x2 + cf[b + 3] * x3
+    acc += y2 * r
+    b += stride
+    r = cf[b] * x0 + cf[b + 1] * x1 + cf[b + 2] * x2 + cf[b + 3] * x3
+    return acc + y3 * r
+
+
+# ---------------------------------------------------------------------------------------------------------
+# Reference subset: zero-mean values, gradients, Hessian (inverted once), constant parts of the step.
+# ---------------------------------------------------------------------------------------------------------
+
+@numba.njit(cache=True)
+def _cholesky_inverse(h, out):
+    """Inverse of a symmetric positive-definite matrix via Jacobi-scaled Cholesky; False if not SPD."""
+    n = h.shape[0]
+    d = np.empty(n)
+    for i in range(n):
+        if not h[i, i] > 0.0:
+            return False
+        d[i] = 1.0 / np.sqrt(h[i, i])
+    a = np.empty((n, n))
+    for i in range(n):
+        for j in range(n):
+            a[i, j] = h[i, j] * d[i] * d[j]
+    lower = np.zeros((n, n))
+    for j in range(n):
+        s = a[j, j]
+        for k in range(j):
+            s -= lower[j, k] * lower[j, k]
+        # A relative pivot this small means the subset cannot constrain this parameter combination.
+        if s <= 1e-10:
+            return False
+        lower[j, j] = np.sqrt(s)
+        for i in range(j + 1, n):
+            s = a[i, j]
+            for k in range(j):
+                s -= lower[i, k] * lower[j, k]
+            lower[i, j] = s / lower[j, j]
+    # inverse of lower, then A^-1 = L^-T L^-1
+    linv = np.zeros((n, n))
+    for i in range(n):
+        linv[i, i] = 1.0 / lower[i, i]
+        for j in range(i):
+            s = 0.0
+            for k in range(j, i):
+                s -= lower[i, k] * linv[k, j]
+            linv[i, j] = s / lower[i, i]
+    for i in range(n):
+        for j in range(n):
+            s = 0.0
+            for k in range(max(i, j), n):
+                s += linv[k, i] * linv[k, j]
+            out[i, j] = s * d[i] * d[j]
+    return True
+
+
+@numba.njit(cache=True, fastmath=True)
+def prepare_reference(image, grad_x, grad_y, x0, y0, half, order, min_std, f, fx, fy, hinv, a, s):
+    """Precompute everything IC-GN needs from one reference subset.
+
+    Parameters
+    ----------
+    image, grad_x, grad_y : ndarray of float64, shape (rows, cols)
+        Reference image and its interpolant's gradients at pixel centres.
+    x0, y0 : int
+        Point of interest (column, row), px.
+    half : int
+        M; the subset is (2M + 1) x (2M + 1).
+    order : int
+        1 or 2.
+    min_std : float
+        Smallest accepted standard deviation of the subset's grey levels.
+    f, fx, fy : ndarray of float64, shape ((2M+1)^2,)
+        Out: zero-mean subset values and gradients, row-major.
+    hinv : ndarray, shape (np, np)
+        Out: inverse Hessian (np = 6 or 12, compact parameter order, see :func:`compact_to_full`).
+    a, s : ndarray, shape (np,)
+        Out: sum J^T (f - f_m) and sum J^T.
+
+    Returns
+    -------
+    status : int
+    delta_f : float
+        sqrt(sum (f - f_m)^2).
+    sssig_x, sssig_y : float
+        Sum of squared subset intensity gradients (Pan 2008), grey^2 / px^2.
+    """
+    rows, cols = image.shape
+    if x0 - half < 0 or y0 - half < 0 or x0 + half >= cols or y0 + half >= rows:
+        return OUT_OF_IMAGE, 0.0, 0.0, 0.0
+    n = 2 * half + 1
+    total = 0.0
+    for r in range(n):
+        for c in range(n):
+            value = image[y0 - half + r, x0 - half + c]
+            if not np.isfinite(value):
+                return INVALID_IMAGE, 0.0, 0.0, 0.0
+            total += value
+    mean = total / (n * n)
+    sum_sq = 0.0
+    sssig_x = 0.0
+    sssig_y = 0.0
+    nm = 3 if order == 1 else 6
+    npar = 2 * nm
+    h = np.zeros((npar, npar))
+    for k in range(npar):
+        a[k] = 0.0
+        s[k] = 0.0
+    jac = np.empty(npar)
+    k = 0
+    for r in range(n):
+        dy = float(r - half)
+        for c in range(n):
+            dx = float(c - half)
+            value = image[y0 - half + r, x0 - half + c] - mean
+            gx = grad_x[y0 - half + r, x0 - half + c]
+            gy = grad_y[y0 - half + r, x0 - half + c]
+            f[k] = value
+            fx[k] = gx
+            fy[k] = gy
+            k += 1
+            sum_sq += value * value
+            sssig_x += gx * gx
+            sssig_y += gy * gy
+            jac[0] = gx
+            jac[1] = gx * dx
+            jac[2] = gx * dy
+            jac[nm] = gy
+            jac[nm + 1] = gy * dx
+            jac[nm + 2] = gy * dy
+            if order == 2:
+                jac[3] = 0.5 * gx * dx * dx
+                jac[4] = gx * dx * dy
+                jac[5] = 0.5 * gx * dy * dy
+                jac[9] = 0.5 * gy * dx * dx
+                jac[10] = gy * dx * dy
+                jac[11] = 0.5 * gy * dy * dy
+            for i in range(npar):
+                ji = jac[i]
+                a[i] += ji * value
+                s[i] += ji
+                for j in range(i, npar):
+                    h[i, j] += ji * jac[j]
+    for i in range(npar):
+        for j in range(i):
+            h[i, j] = h[j, i]
+    std = np.sqrt(sum_sq / (n * n))
+    if not std >= min_std:
+        return LOW_TEXTURE, 0.0, sssig_x, sssig_y
+    if not _cholesky_inverse(h, hinv):
+        return LOW_TEXTURE, 0.0, sssig_x, sssig_y
+    return CONVERGED, np.sqrt(sum_sq), sssig_x, sssig_y
+
+
+# ---------------------------------------------------------------------------------------------------------
+# Iterations
+# ---------------------------------------------------------------------------------------------------------
+
+@numba.njit(inline="always")
+def _quadratic_range(a, b, c, half):
+    """Min and max of ``a + b t + c t^2`` over t in [-half, half]."""
+    m = float(half)
+    lo_value = a - b * m + c * m * m
+    hi_value = a + b * m + c * m * m
+    low = min(lo_value, hi_value)
+    high = max(lo_value, hi_value)
+    if c != 0.0:
+        t = -b / (2.0 * c)
+        if -m < t < m:
+            vertex = a + b * t + c * t * t
+            low = min(low, vertex)
+            high = max(high, vertex)
+    return low, high
+
+
+@numba.njit(cache=True, fastmath=True)
+def _row_sums_quintic(cf, cols, ax, bx, cx, ay, by, cy, half, f, fx, fy, k0):
+    """Sums over one subset row of the deformed image sampled on the warped row (no bounds checks)."""
+    sum_g = 0.0
+    sum_gg = 0.0
+    sum_fg = 0.0
+    rx0 = 0.0
+    rx1 = 0.0
+    rx2 = 0.0
+    ry0 = 0.0
+    ry1 = 0.0
+    ry2 = 0.0
+    for c in range(2 * half + 1):
+        dx = float(c - half)
+        xw = ax + dx * (bx + cx * dx)
+        yw = ay + dx * (by + cy * dx)
+        g = _quintic_value(cf, cols, xw, yw)
+        k = k0 + c
+        sum_g += g
+        sum_gg += g * g
+        sum_fg += f[k] * g
+        gxg = fx[k] * g
+        gyg = fy[k] * g
+        rx0 += gxg
+        rx1 += gxg * dx
+        rx2 += gxg * dx * dx
+        ry0 += gyg
+        ry1 += gyg * dx
+        ry2 += gyg * dx * dx
+    return sum_g, sum_gg, sum_fg, rx0, rx1, rx2, ry0, ry1, ry2
+
+
+@numba.njit(cache=True, fastmath=True)
+def _row_sums_cubic(cf, cols, ax, bx, cx, ay, by, cy, half, f, fx, fy, k0):
+    """As :func:`_row_sums_quintic`, bicubic."""
+    sum_g = 0.0
+    sum_gg = 0.0
+    sum_fg = 0.0
+    rx0 = 0.0
+    rx1 = 0.0
+    rx2 = 0.0
+    ry0 = 0.0
+    ry1 = 0.0
+    ry2 = 0.0
+    for c in range(2 * half + 1):
+        dx = float(c - half)
+        xw = ax + dx * (bx + cx * dx)
+        yw = ay + dx * (by + cy * dx)
+        g = _cubic_value(cf, cols, xw, yw)
+        k = k0 + c
+        sum_g += g
+        sum_gg += g * g
+        sum_fg += f[k] * g
+        gxg = fx[k] * g
+        gyg = fy[k] * g
+        rx0 += gxg
+        rx1 += gxg * dx
+        rx2 += gxg * dx * dx
+        ry0 += gyg
+        ry1 += gyg * dx
+        ry2 += gyg * dx * dx
+    return sum_g, sum_gg, sum_fg, rx0, rx1, rx2, ry0, ry1, ry2
+
+
+@numba.njit(cache=True)
+def _row_touches_bad(bad, ax, bx, cx, ay, by, cy, half):
+    for c in range(2 * half + 1):
+        dx = float(c - half)
+        if bad[int(ay + dx * (by + cy * dx)), int(ax + dx * (bx + cx * dx))]:
+            return True
+    return False
+
+
+@numba.njit(cache=True, fastmath=True)
+def iterate(coef, degree, bad, check_bad, x0, y0, half, order, f, fx, fy, delta_f, hinv, a, s, p,
+            max_iterations, tolerance_px):
+    """Run IC-GN on one point from the initial parameters ``p``.
+
+    Parameters
+    ----------
+    coef : ndarray of float64, shape (rows, cols)
+        B-spline coefficients of the deformed image.
+    degree : int
+        3 or 5.
+    bad : ndarray of bool/uint8, shape (rows, cols)
+        True where the deformed image is invalid (dilated by the interpolation support); read only when
+        ``check_bad``.
+    x0, y0, half, order, f, fx, fy, delta_f, hinv, a, s
+        As produced by :func:`prepare_reference`.
+    p : ndarray of float64, shape (12,)
+        Initial shape parameters (see :mod:`.shape_functions`), updated in place.
+    max_iterations : int
+    tolerance_px : float
+        Convergence threshold on the increment at the subset edge, px.
+
+    Returns
+    -------
+    status : int
+    zncc : float
+        ZNCC of the last evaluated warp (the one before the final, below-tolerance increment).
+    iterations : int
+    """
+    rows, cols = coef.shape
+    cf = coef.reshape(-1)
+    if degree == 5:
+        lo, hi = 2.0, 3.0
+    else:
+        lo, hi = 1.0, 2.0
+    xmax = cols - hi
+    ymax = rows - hi
+    n = 2 * half + 1
+    count = float(n * n)
+    nm = 3 if order == 1 else 6
+    npar = 2 * nm
+    g_j = np.empty(npar)
+    b = np.empty(npar)
+    step = np.empty(npar)
+    dp = np.zeros(12)
+    zncc = np.nan
+    for iteration in range(1, max_iterations + 1):
+        u, ux, uy, uxx, uxy, uyy = p[0], p[1], p[2], p[3], p[4], p[5]
+        v, vx, vy, vxx, vxy, vyy = p[6], p[7], p[8], p[9], p[10], p[11]
+        sum_g = 0.0
+        sum_gg = 0.0
+        sum_fg = 0.0
+        for i in range(npar):
+            g_j[i] = 0.0
+        for r in range(n):
+            dy = float(r - half)
+            ax = x0 + u + uy * dy + 0.5 * uyy * dy * dy
+            bx = 1.0 + ux + uxy * dy
+            cx = 0.5 * uxx
+            ay = y0 + dy + v + vy * dy + 0.5 * vyy * dy * dy
+            by = vx + vxy * dy
+            cy = 0.5 * vxx
+            x_low, x_high = _quadratic_range(ax, bx, cx, half)
+            y_low, y_high = _quadratic_range(ay, by, cy, half)
+            if not (x_low >= lo and y_low >= lo and x_high < xmax and y_high < ymax):
+                return OUT_OF_IMAGE, zncc, iteration
+            if check_bad and _row_touches_bad(bad, ax, bx, cx, ay, by, cy, half):
+                return INVALID_IMAGE, zncc, iteration
+            if degree == 5:
+                sg, sgg, sfg, rx0, rx1, rx2, ry0, ry1, ry2 = _row_sums_quintic(
+                    cf, cols, ax, bx, cx, ay, by, cy, half, f, fx, fy, r * n)
+            else:
+                sg, sgg, sfg, rx0, rx1, rx2, ry0, ry1, ry2 = _row_sums_cubic(
+                    cf, cols, ax, bx, cx, ay, by, cy, half, f, fx, fy, r * n)
+            sum_g += sg
+            sum_gg += sgg
+            sum_fg += sfg
+            g_j[0] += rx0
+            g_j[1] += rx1
+            g_j[2] += rx0 * dy
+            g_j[nm] += ry0
+            g_j[nm + 1] += ry1
+            g_j[nm + 2] += ry0 * dy
+            if order == 2:
+                g_j[3] += 0.5 * rx2
+                g_j[4] += rx1 * dy
+                g_j[5] += 0.5 * rx0 * dy * dy
+                g_j[9] += 0.5 * ry2
+                g_j[10] += ry1 * dy
+                g_j[11] += 0.5 * ry0 * dy * dy
+        mean_g = sum_g / count
+        var_g = sum_gg - count * mean_g * mean_g
+        if not var_g > 1e-12 * (sum_gg + 1e-300):
+            return DIVERGED, zncc, iteration
+        delta_g = np.sqrt(var_g)
+        # f is zero-mean, so sum f g = sum (f - f_m)(g - g_m).
+        zncc = sum_fg / (delta_f * delta_g)
+        ratio = delta_f / delta_g
+        for i in range(npar):
+            b[i] = a[i] - ratio * (g_j[i] - mean_g * s[i])
+        for i in range(npar):
+            acc = 0.0
+            for j in range(npar):
+                acc -= hinv[i, j] * b[j]
+            step[i] = acc
+        if order == 1:
+            dp[0], dp[1], dp[2] = step[0], step[1], step[2]
+            dp[6], dp[7], dp[8] = step[3], step[4], step[5]
+        else:
+            for i in range(12):
+                dp[i] = step[i]
+        m = float(half)
+        edge_u = abs(dp[0]) + m * (abs(dp[1]) + abs(dp[2])) + 0.5 * m * m * (
+            abs(dp[3]) + 2.0 * abs(dp[4]) + abs(dp[5]))
+        edge_v = abs(dp[6]) + m * (abs(dp[7]) + abs(dp[8])) + 0.5 * m * m * (
+            abs(dp[9]) + 2.0 * abs(dp[10]) + abs(dp[11]))
+        if not (abs(dp[0]) < MAX_STEP_PX and abs(dp[6]) < MAX_STEP_PX):
+            return DIVERGED, zncc, iteration
+        if not compose_inverse(p, dp, order):
+            return DIVERGED, zncc, iteration
+        if np.sqrt(edge_u * edge_u + edge_v * edge_v) < tolerance_px:
+            return CONVERGED, zncc, iteration
+    return MAX_ITERATIONS, zncc, max_iterations
+
+
+@numba.njit(cache=True, parallel=True)
+def correlate_batch(image, grad_x, grad_y, coef, degree, bad, check_bad, xs, ys, half, order, min_std, p,
+                    max_iterations, tolerance_px, status, zncc, iterations, sssig):
+    """IC-GN on many points in parallel, each from its own initial guess ``p[k]`` (updated in place).
+
+    Outputs ``status``, ``zncc``, ``iterations`` (n,) and ``sssig`` (n, 2) are filled per point.
+    """
+    npar = 6 if order == 1 else 12
+    n = 2 * half + 1
+    for k in numba.prange(xs.shape[0]):
+        f = np.empty(n * n)
+        fx = np.empty(n * n)
+        fy = np.empty(n * n)
+        hinv = np.empty((npar, npar))
+        a = np.empty(npar)
+        s = np.empty(npar)
+        st, delta_f, sx, sy = prepare_reference(image, grad_x, grad_y, xs[k], ys[k], half, order, min_std,
+                                                f, fx, fy, hinv, a, s)
+        sssig[k, 0] = sx
+        sssig[k, 1] = sy
+        if st != CONVERGED:
+            status[k] = st
+            zncc[k] = np.nan
+            iterations[k] = 0
+            continue
+        st, c, it = iterate(coef, degree, bad, check_bad, xs[k], ys[k], half, order, f, fx, fy, delta_f, hinv,
+                            a, s, p[k], max_iterations, tolerance_px)
+        status[k] = st
+        zncc[k] = c
+        iterations[k] = it
+
+
+def compact_size(order: int) -> int:
+    """Number of IC-GN parameters: 6 for a first-order, 12 for a second-order shape function."""
+    return 6 if order == 1 else 12
