@@ -6,6 +6,8 @@
     workbench reproduce calibration [--scale F] [--seed S] [--spp N] --out DIR
     workbench calibrate --left GLOB --right GLOB --square-mm 5 --pattern 11x8 [--model rmm]
                         [--tilt-guess-deg A,B] --out calib.json
+    workbench dic REF DEF [--roi X0,Y0,X1,Y1] [--subset 33] [--step 8] [--order 1|2]
+                  [--interp biquintic|bicubic] [--seed-point X,Y] --out points.csv
 """
 from __future__ import annotations
 
@@ -86,7 +88,73 @@ def _parser() -> argparse.ArgumentParser:
     cal.add_argument("--no-joint", action="store_true", help="skip the final joint refinement")
     cal.add_argument("--refine-corners", action="store_true", help="saddle-fit refinement of OpenCV's corners")
     cal.add_argument("--out", type=Path, required=True, help="calibration JSON (a .yaml OpenCV export is written beside)")
+
+    dic = sub.add_parser("dic", help="2-D subset DIC between a reference and a deformed image (any 8/16-bit grey files)")
+    dic.add_argument("reference", type=Path, help="reference image file")
+    dic.add_argument("deformed", type=Path, help="deformed image file")
+    dic.add_argument("--roi", type=_roi, default=None, help="rectangle of points of interest X0,Y0,X1,Y1 (px)")
+    dic.add_argument("--mask", type=Path, default=None, help="image whose non-zero pixels may hold points of interest")
+    dic.add_argument("--subset", type=_positive_int, default=33, help="subset size 2M+1 (odd, px), default 33")
+    dic.add_argument("--step", type=_positive_int, default=8, help="grid step (px), default 8")
+    dic.add_argument("--order", type=int, choices=(1, 2), default=1, help="shape function order, default 1")
+    dic.add_argument("--interp", choices=("biquintic", "bicubic"), default="biquintic")
+    dic.add_argument("--seed-point", type=_pair, action="append", default=None,
+                     help="preferred seed X,Y (px); may be repeated")
+    dic.add_argument("--seed-guess", type=_pair, default=(0.0, 0.0),
+                     help="displacement U,V (px) at which the seed search is centred, default 0,0")
+    dic.add_argument("--search-radius", type=_positive_int, default=32, help="seed search half-width (px)")
+    dic.add_argument("--min-zncc", type=float, default=0.8, help="points below this ZNCC are rejected")
+    dic.add_argument("--tolerance", type=float, default=1e-3, help="IC-GN convergence threshold (px at the subset edge)")
+    dic.add_argument("--lowpass-sigma", type=float, default=0.0, help="Gaussian pre-filter sigma (px), default off")
+    dic.add_argument("--threads", type=_positive_int, default=None, help="worker threads (default: all cores)")
+    dic.add_argument("--out", type=Path, required=True, help="CSV of the points (x,y,u,v,zncc,iterations,status,...)")
     return p
+
+
+def _roi(text: str) -> tuple[int, int, int, int]:
+    try:
+        values = tuple(int(round(float(v))) for v in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"roi must be X0,Y0,X1,Y1, got {text!r}") from None
+    if len(values) != 4:
+        raise argparse.ArgumentTypeError(f"roi must be X0,Y0,X1,Y1, got {text!r}")
+    return values
+
+
+def _dic(args) -> int:
+    import numba
+
+    from measurement.dic import DICSettings, Status, correlate
+    from measurement.image_io import read_grey
+
+    if args.threads:
+        numba.set_num_threads(min(args.threads, numba.config.NUMBA_NUM_THREADS))
+    reference = read_grey(args.reference)
+    deformed = read_grey(args.deformed)
+    if reference.shape != deformed.shape:
+        raise ValueError(f"{args.reference} is {reference.shape[1]} x {reference.shape[0]} px but {args.deformed} is "
+                         f"{deformed.shape[1]} x {deformed.shape[0]} px: the images must have the same size")
+    mask = None
+    if args.mask is not None:
+        mask = read_grey(args.mask) != 0
+    settings = DICSettings(subset_size=args.subset, step=args.step, order=args.order, interpolation=args.interp,
+                           search_radius_px=args.search_radius, min_zncc=args.min_zncc,
+                           tolerance_px=args.tolerance, lowpass_sigma_px=args.lowpass_sigma)
+    result = correlate(reference, deformed, settings, roi=args.roi, mask=mask, seed_points_xy=args.seed_point,
+                       seed_guess_px=args.seed_guess)
+    result.to_csv(args.out)
+    ok = result.converged
+    counts = ", ".join(f"{name.lower()} {n}" for name, n in result.status_counts().items())
+    print(f"{result.x.size} points ({counts}) in {result.timings_s['total']:.2f} s; wrote {args.out}")
+    if ok.any():
+        print(f"  u {np.nanmin(result.u):.4f} .. {np.nanmax(result.u):.4f} px, v {np.nanmin(result.v):.4f} .. "
+              f"{np.nanmax(result.v):.4f} px, median ZNCC {np.median(result.zncc[ok]):.4f}, "
+              f"mean iterations {result.iterations[ok].mean():.2f}")
+    else:
+        print(f"  no point converged (statuses: {', '.join(Status(s).name for s in np.unique(result.status))})",
+              file=sys.stderr)
+        return 1
+    return 0
 
 
 def _pattern(text: str) -> tuple[int, int]:
@@ -223,7 +291,8 @@ def main(argv: list[str] | None = None) -> int:
                 ("reproduce", "agreement"): _reproduce_agreement,
                 ("reproduce", "depth-of-field"): _reproduce_depth_of_field,
                 ("reproduce", "calibration"): _reproduce_calibration,
-                ("calibrate", None): _calibrate}
+                ("calibrate", None): _calibrate,
+                ("dic", None): _dic}
     try:
         return handlers[(args.command, getattr(args, "what", None))](args)
     except (ValueError, OSError, RuntimeError) as err:

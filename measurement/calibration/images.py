@@ -5,12 +5,12 @@ import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
-import cv2
 import numpy as np
 from tqdm import tqdm
 
 from measurement.calibration.detection import board_points_mm, detect_checkerboard, refine_corners_saddle
 from measurement.calibration.stepwise import CalibrationError, StereoCalibration, calibrate_stereo
+from measurement.image_io import read_grey
 
 #: Fewest stereo views the stepwise procedure accepts (Zhang's initialisation needs >= 3 homographies).
 MIN_VIEWS = 3
@@ -26,16 +26,6 @@ class DetectedPairs:
     points_right: np.ndarray    # (V, N, 2)
     image_size: tuple[int, int]
     dropped: list[str]          # files whose board was not found (their pair is dropped)
-
-
-def read_grey(path: str | Path) -> np.ndarray:
-    """Read an 8/16-bit image as a 2-D array; a clear error names the file that cannot be read."""
-    image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
-    if image is None:
-        raise ValueError(f"cannot read image {path}")
-    if image.ndim == 3:
-        image = cv2.cvtColor(image[..., :3], cv2.COLOR_BGR2GRAY)
-    return image
 
 
 def detect_pairs(left_files, right_files, pattern_size=(11, 8), progress: bool = True,
