@@ -18,7 +18,7 @@ from scipy import ndimage
 from . import bspline
 from .grid import PoiGrid, check_subset_size, poi_grid
 from .guide import band_regions, propagate
-from .icgn import correlate_batch
+from .icgn import correlate_batch, reference_status
 from .initial import DEFAULT_SEED_ANGLES_DEG, Seed, zncc_search
 from .shape_functions import N_PARAMETERS, PARAMETER_NAMES, SECOND_ORDER
 from .status import CONVERGED, NOT_REACHED, Status
@@ -392,6 +392,14 @@ def correlate(reference: np.ndarray, deformed: np.ndarray, settings: DICSettings
                           min_std, int(settings.max_iterations), float(settings.tolerance_px),
                           float(settings.min_zncc), params, status, zncc, iterations, sssig, True)
         timings["propagation"] = time.perf_counter() - t
+        # Unreached nodes whose reference subset is unusable anyway (outside, flat, NaN) say why.
+        unreached = np.argwhere(grid.active & (status == NOT_REACHED))
+        if unreached.size:
+            r_u, c_u = unreached[:, 0], unreached[:, 1]
+            own = reference_status(ref.values, ref.spline.grad_x, ref.spline.grad_y,
+                                   grid.x[r_u, c_u].astype(np.int64), grid.y[r_u, c_u].astype(np.int64), half,
+                                   settings.order, min_std)
+            status[r_u, c_u] = np.where(own == CONVERGED, NOT_REACHED, own)
 
     r, c = active_rc[:, 0], active_rc[:, 1]
     out_status = status[r, c]

@@ -1,0 +1,311 @@
+"""The 2-D DIC engine (measurement/dic) against exact synthetic images (scenes/synthetic_images).
+
+Fourier-shifted speckle pairs give exact sub-pixel translations (interpolation bias, noise); analytic
+Gaussian speckles sampled through known displacement fields give strain, quadratic fields, rotations and
+large displacements.
+"""
+from __future__ import annotations
+
+import numba
+import numpy as np
+import pytest
+from scipy import ndimage
+
+from measurement.dic import DICSettings, Status, correlate, poi_grid
+from measurement.dic.bspline import interpolate, prefilter
+from measurement.dic.shape_functions import compose_inverse, warp_points
+from scenes.noise import apply_sensor_noise
+from scenes.synthetic_images import (HomogeneousStrain, QuadraticField, Rotation, Translation, extent_for_shape,
+                                     fourier_shifted_pair, gaussian_speckle)
+
+SHIFTS_PX = np.round(np.arange(0.0, 1.01, 0.1), 10)
+
+
+def _bias_curve(speckle_px, interpolation, lowpass_sigma_px=0.0, shape=(192, 192)):
+    """Mean u error vs sub-pixel shift over a grid of points, noise-free Fourier-shifted pairs."""
+    errors = []
+    for shift in SHIFTS_PX:
+        reference, shifted = fourier_shifted_pair(shape, speckle_px, (shift, 0.0), seed=1)
+        settings = DICSettings(subset_size=33, step=12, interpolation=interpolation, tolerance_px=1e-6,
+                               lowpass_sigma_px=lowpass_sigma_px)
+        result = correlate(reference, shifted, settings, roi=(40, 40, shape[1] - 40, shape[0] - 40),
+                           initial_parameters=lambda x, y: (0.0 * x, 0.0 * y))
+        assert result.converged.all()
+        errors.append(float(np.mean(result.u) - shift))
+    return np.array(errors)
+
+
+# --- interpolation ----------------------------------------------------------------------------------------
+
+@pytest.mark.parametrize("degree", [3, 5])
+def test_spline_matches_scipy_and_its_own_derivative(degree):
+    rng = np.random.default_rng(0)
+    image = ndimage.gaussian_filter(rng.random((50, 60)) * 255, 1.2)
+    spline = prefilter(image, degree)
+    x, y = rng.uniform(4, 54, 300), rng.uniform(4, 44, 300)
+    value, grad_x, grad_y = interpolate(spline, x, y)
+    assert np.abs(value - ndimage.map_coordinates(image, [y, x], order=degree, mode="mirror")).max() < 1e-9
+    h = 1e-5
+    numeric_x = (interpolate(spline, x + h, y)[0] - interpolate(spline, x - h, y)[0]) / (2 * h)
+    numeric_y = (interpolate(spline, x, y + h)[0] - interpolate(spline, x, y - h)[0]) / (2 * h)
+    assert np.abs(grad_x - numeric_x).max() < 1e-6
+    assert np.abs(grad_y - numeric_y).max() < 1e-6
+    # the interpolant passes through the pixels, and the stored pixel gradients are its gradients there
+    xi = np.arange(5.0, 55.0)
+    v, gx, gy = interpolate(spline, xi, np.full_like(xi, 20.0))
+    assert np.abs(v - image[20, 5:55]).max() < 1e-9
+    assert np.abs(gx - spline.grad_x[20, 5:55]).max() < 1e-9
+    assert np.abs(gy - spline.grad_y[20, 5:55]).max() < 1e-9
+    # outside the support: NaN, not a number
+    assert np.isnan(interpolate(spline, np.array([0.5]), np.array([20.0]))[0]).all()
+
+
+def test_inverse_composition_of_warps():
+    rng = np.random.default_rng(1)
+    dx, dy = np.meshgrid(np.arange(-5.0, 6.0), np.arange(-5.0, 6.0))
+    for order in (1, 2):
+        p = rng.normal(0, 0.02, 12)
+        dp = rng.normal(0, 0.002, 12)
+        p[0], p[6], dp[0], dp[6] = 1.3, -0.7, 0.05, -0.03
+        p[[3, 4, 5, 9, 10, 11]] *= 0.05     # curvatures of a realistic subset (|u_xx| ~ 1e-3 / px)
+        dp[[3, 4, 5, 9, 10, 11]] *= 0.05
+        if order == 1:
+            p[[3, 4, 5, 9, 10, 11]] = 0.0
+            dp[[3, 4, 5, 9, 10, 11]] = 0.0
+        new = p.copy()
+        assert compose_inverse(new, dp, order)
+        # W(new)(W(dp)(xi)) must equal W(p)(xi): apply dp, then new.
+        du, dv = warp_points(dp, dx, dy)
+        x1, y1 = dx + du, dy + dv
+        u2, v2 = warp_points(new, x1, y1)
+        u_ref, v_ref = warp_points(p, dx, dy)
+        # the 6x6 form drops the 3rd/4th-order terms (~|p2| |dp| r^3): 5e-5 px here against a 0.05 px increment
+        tolerance = 1e-12 if order == 1 else 1e-4
+        assert np.abs(x1 + u2 - (dx + u_ref)).max() < tolerance
+        assert np.abs(y1 + v2 - (dy + v_ref)).max() < tolerance
+
+
+# --- systematic error (interpolation bias) -----------------------------------------------------------------
+
+def test_bias_biquintic_on_4px_speckle_and_bicubic_beside_it():
+    quintic = _bias_curve(4.0, "biquintic")
+    cubic = _bias_curve(4.0, "bicubic")
+    # zero, half and whole pixel shifts have no interpolation bias by symmetry
+    assert np.abs(quintic[[0, 5, 10]]).max() < 2e-5
+    assert np.abs(quintic).max() <= 5e-4
+    # the classic S-curve: same sign on (0, 0.5), opposite on (0.5, 1), and bicubic several times larger
+    assert (np.sign(quintic[1:5]) == -np.sign(quintic[6:10])).all()
+    assert np.abs(cubic).max() > 3 * np.abs(quintic).max()
+
+
+def test_bias_on_fine_2_5px_speckle_needs_the_gaussian_prefilter():
+    plain = _bias_curve(2.5, "biquintic")
+    filtered = _bias_curve(2.5, "biquintic", lowpass_sigma_px=0.9)
+    # The 2.5 px speckle carries much power near Nyquist, where any spline errs (measured 0.0052 px) ...
+    assert np.abs(plain).max() > 2e-3
+    # ... and the Gaussian pre-filter of Pan (2013) brings it within the goal (measured 0.00037 px).
+    assert np.abs(filtered).max() <= 5e-4
+
+
+# --- random error -----------------------------------------------------------------------------------------
+
+def test_random_error_matches_the_noise_floor():
+    """std(u) under Gaussian noise (sigma 2 grey in both images) vs sqrt(2) sigma / sqrt(SSSIG) (Pan 2008).
+
+    Non-overlapping subsets and 8 noise draws give ~4 800 independent errors (the ratio is known to about
+    1 %); each error is taken against the same point's noise-free result, so interpolation bias (which varies
+    from point to point) does not count as noise.
+    """
+    sigma_grey = 2.0
+    settings = DICSettings(subset_size=33, step=33, tolerance_px=1e-4)
+    roi = (20, 20, 492, 492)
+    errors, predicted = [], []
+    for shift in (0.0, 0.25, 0.5):
+        reference, shifted = fourier_shifted_pair((512, 512), 4.0, (shift, 0.0), seed=10)
+        guess = lambda x, y: (0.0 * x + shift, 0.0 * y)  # noqa: E731
+        clean = correlate(reference, shifted, settings, roi=roi, initial_parameters=guess)
+        for k in range(8):
+            noisy_ref = apply_sensor_noise(reference, read_noise_grey=sigma_grey, bit_depth=None, seed=100 + k)
+            noisy_def = apply_sensor_noise(shifted, read_noise_grey=sigma_grey, bit_depth=None, seed=200 + k)
+            result = correlate(noisy_ref, noisy_def, settings, roi=roi, initial_parameters=guess)
+            assert result.converged.all()
+            errors.append(result.u - clean.u)
+            predicted.append(result.predicted_std_px(sigma_grey)[0])
+    errors, predicted = np.concatenate(errors), np.concatenate(predicted)
+    ratio = errors.std() / np.sqrt(np.mean(predicted ** 2))
+    print(f"random error ratio std(u) / theory = {ratio:.3f} over {errors.size} points")
+    assert 0.9 < ratio <= 1.05
+
+
+# --- deformation fields -----------------------------------------------------------------------------------
+
+@pytest.fixture(scope="module")
+def speckle():
+    return gaussian_speckle(extent_for_shape((256, 256), margin_px=60), 1.8, seed=5)
+
+
+def _score(result, field):
+    ok = result.converged
+    u_true, v_true = field(result.x[ok].astype(float), result.y[ok].astype(float))
+    return np.abs(result.u[ok] - u_true).max(), np.abs(result.v[ok] - v_true).max()
+
+
+@pytest.mark.parametrize("strain", [0.005, 0.02])
+def test_homogeneous_strain(speckle, strain):
+    field = HomogeneousStrain(strain, -0.3 * strain, 0.0, centre_xy_px=(128, 128))
+    reference = speckle.render_reference((256, 256))
+    deformed = speckle.render_deformed((256, 256), field)
+    for order in (1, 2):
+        result = correlate(reference, deformed, DICSettings(subset_size=31, step=16, order=order),
+                           roi=(40, 40, 216, 216))
+        assert result.converged.all(), result.status_counts()
+        assert max(_score(result, field)) < 2e-3
+        assert np.abs(result.parameters[:, 1] - strain).max() < 2e-4
+        assert np.abs(result.parameters[:, 8] + 0.3 * strain).max() < 2e-4
+
+
+def test_quadratic_field_second_order_exact_first_order_undermatches(speckle):
+    a = 2e-4   # u = a dx^2: u_xx = 2a
+    field = QuadraticField(u_coeffs=(a, 0.0, 0.0), v_coeffs=(0.0, 0.0, a), centre_xy_px=(128, 128))
+    reference = speckle.render_reference((256, 256))
+    deformed = speckle.render_deformed((256, 256), field)
+    half = 20
+    roi = (60, 60, 196, 196)
+    second = correlate(reference, deformed, DICSettings(subset_size=2 * half + 1, step=17, order=2), roi=roi)
+    first = correlate(reference, deformed, DICSettings(subset_size=2 * half + 1, step=17, order=1), roi=roi)
+    assert second.converged.all() and first.converged.all()
+    err2 = max(_score(second, field))
+    assert err2 < 2e-3
+    assert np.abs(second.parameters[:, 3] - 2 * a).max() < 2e-5      # u_xx
+    assert np.abs(second.parameters[:, 11] - 2 * a).max() < 2e-5     # v_yy
+    # First order fits a plane to a parabola: u at the centre comes out high by a <dx^2> = a M(M+1)/3.
+    expected = a * half * (half + 1) / 3.0
+    u_true, _ = field(first.x.astype(float), first.y.astype(float))
+    offset = np.mean(first.u - u_true)
+    assert offset == pytest.approx(expected, rel=0.15)
+    assert offset > 20 * err2
+
+
+@pytest.mark.parametrize("angle_deg", [10.0, 30.0])
+def test_rotation_converges_from_seeds(speckle, angle_deg):
+    field = Rotation(angle_deg, centre_xy_px=(128, 128))
+    reference = speckle.render_reference((256, 256))
+    deformed = speckle.render_deformed((256, 256), field)
+    result = correlate(reference, deformed, DICSettings(subset_size=31, step=12), roi=(40, 40, 216, 216))
+    inside = _deformed_subset_inside(result, field, 15, (256, 256))
+    assert inside.sum() > 100
+    assert result.converged[inside].all(), result.status_counts()
+    assert max(_score(result, field)) < 3e-3
+    angle = np.rad2deg(np.arctan2(result.parameters[result.converged, 7], 1 + result.parameters[result.converged, 1]))
+    assert np.abs(angle - angle_deg).max() < 0.01
+
+
+def test_large_varying_displacement_from_one_seed():
+    shape = (320, 320)
+    pattern = gaussian_speckle(extent_for_shape(shape, margin_px=60), 1.8, seed=8)
+    # 20 px range across the field: u = 10 sin-free quadratic bowl plus a tilt.
+    field = QuadraticField(u_coeffs=(2e-4, 0.0, 1e-4), v_coeffs=(0.0, 1.5e-4, 0.0), centre_xy_px=(20, 20))
+    reference = pattern.render_reference(shape)
+    deformed = pattern.render_deformed(shape, field)
+    result = correlate(reference, deformed, DICSettings(subset_size=31, step=10, order=2, regions=1),
+                       roi=(30, 30, 290, 290))
+    u_true, v_true = field(result.x.astype(float), result.y.astype(float))
+    assert np.ptp(u_true) > 19.0
+    inside = _deformed_subset_inside(result, field, 15, shape)
+    assert result.converged[inside].mean() > 0.99, result.status_counts()
+    assert max(_score(result, field)) < 3e-3
+
+
+def _deformed_subset_inside(result, field, half, shape, margin=3.0):
+    inside = np.ones(result.x.size, dtype=bool)
+    for sx in (-half, half):
+        for sy in (-half, half):
+            x, y = result.x + float(sx), result.y + float(sy)
+            u, v = field(x, y)
+            inside &= (x + u >= margin) & (y + v >= margin) & (x + u < shape[1] - margin) & (y + v < shape[0] - margin)
+    return inside
+
+
+# --- bad input and flags ----------------------------------------------------------------------------------
+
+@pytest.fixture(scope="module")
+def pair():
+    pattern = gaussian_speckle(extent_for_shape((160, 200), margin_px=20), 1.8, seed=2)
+    return pattern.render_reference((160, 200)), pattern.render_deformed((160, 200), Translation(1.7, -0.6))
+
+
+def test_different_sizes_and_bad_settings_are_refused(pair):
+    reference, deformed = pair
+    with pytest.raises(ValueError, match="differ in size"):
+        correlate(reference, deformed[:, :-1])
+    with pytest.raises(ValueError, match="odd"):
+        DICSettings(subset_size=32)
+    with pytest.raises(ValueError, match="order"):
+        DICSettings(order=3)
+    with pytest.raises(ValueError, match="interpolation"):
+        DICSettings(interpolation="linear")
+    with pytest.raises(ValueError, match="2-D"):
+        correlate(np.dstack([reference] * 3), np.dstack([deformed] * 3))
+    with pytest.raises(ValueError, match="roi"):
+        poi_grid(reference.shape, 21, 5, roi=(150, 10, 140, 20))
+    with pytest.raises(ValueError, match="initial_parameters"):
+        correlate(reference, deformed, DICSettings(subset_size=21, step=10), initial_parameters=np.zeros((3, 2)))
+
+
+def test_flags_out_of_image_low_texture_and_nan(pair):
+    reference, deformed = pair
+    reference = reference.copy()
+    deformed = deformed.copy()
+    reference[:, 140:] = 100.0      # untextured band
+    deformed[:, 140:] = 100.0
+    deformed[60:70, 60:70] = np.nan
+    settings = DICSettings(subset_size=21, step=10)
+    result = correlate(reference, deformed, settings, roi=(0, 0, 200, 160))
+    status = result.status
+    for flag in (Status.CONVERGED, Status.OUT_OF_IMAGE, Status.LOW_TEXTURE, Status.INVALID_IMAGE):
+        assert (status == flag).any(), (flag, result.status_counts())
+    failed = status != Status.CONVERGED
+    assert np.isnan(result.u[failed]).all() and np.isnan(result.parameters[failed]).all()
+    assert np.isfinite(result.u[~failed]).all()
+    # subsets leaving the image are flagged, not extrapolated
+    edge = (result.x < 10) | (result.y < 10)
+    assert (status[edge] == Status.OUT_OF_IMAGE).all()
+    # subsets entirely inside the flat band (and the image) are low texture
+    flat = (result.x - 10 >= 140) & (result.x + 10 < 200) & (result.y >= 10) & (result.y + 10 < 160)
+    assert flat.sum() > 10
+    assert (status[flat] == Status.LOW_TEXTURE).all()
+    # the NaN block flags the subsets whose deformed subset touches it
+    touched = (np.abs(result.x + 1.7 - 65) <= 10 + 5 + 12) & (np.abs(result.y - 0.6 - 65) <= 10 + 5 + 12)
+    assert (status[status == Status.INVALID_IMAGE] == Status.INVALID_IMAGE).all()
+    assert touched[status == Status.INVALID_IMAGE].all()
+    # (the flat band does not move between the images, so only subsets clear of it are tested for accuracy)
+    clear = ~failed & (result.x + 10 < 137)
+    assert clear.sum() > 20
+    assert np.abs(result.u[clear] - 1.7).max() < 5e-3
+    assert np.abs(result.v[clear] + 0.6).max() < 5e-3
+
+
+def test_deterministic_and_independent_of_thread_count(pair):
+    reference, deformed = pair
+    settings = DICSettings(subset_size=21, step=7)
+    previous = numba.get_num_threads()
+    try:
+        numba.set_num_threads(1)
+        one = correlate(reference, deformed, settings)
+        numba.set_num_threads(min(2, numba.config.NUMBA_NUM_THREADS))
+        two = correlate(reference, deformed, settings)
+    finally:
+        numba.set_num_threads(previous)
+    assert np.array_equal(one.status, two.status)
+    assert np.array_equal(one.parameters, two.parameters, equal_nan=True)
+
+
+def test_csv_output(pair, tmp_path):
+    reference, deformed = pair
+    result = correlate(reference, deformed, DICSettings(subset_size=21, step=20))
+    path = result.to_csv(tmp_path / "points.csv")
+    lines = path.read_text().splitlines()
+    assert lines[0].startswith("x,y,u,v,zncc,iterations,status,status_name")
+    assert len(lines) == result.x.size + 1
+    row = lines[1 + int(np.argmax(result.converged))].split(",")
+    assert float(row[2]) == pytest.approx(result.u[result.converged][0], abs=1e-8)
