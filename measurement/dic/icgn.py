@@ -163,9 +163,18 @@ def _cholesky_inverse(h, out):
     return True
 
 
+#: Monomials of the shape-function Jacobian, (power of dx, power of dy, factor), in parameter order
+#: (u, ux, uy, uxx, uxy, uyy); the first three make the first-order shape function.
+_MONOMIALS = np.array([[0, 0, 1.0], [1, 0, 1.0], [0, 1, 1.0], [2, 0, 0.5], [1, 1, 1.0], [0, 2, 0.5]])
+
+
 @numba.njit(cache=True, fastmath=True)
 def prepare_reference(image, grad_x, grad_y, x0, y0, half, order, min_std, f, fx, fy, hinv, a, s):
     """Precompute everything IC-GN needs from one reference subset.
+
+    The Hessian ``H = sum J^T J`` has entries ``sum g_i g_j m_i m_j`` with ``g`` in {f_x, f_y} and ``m`` the
+    monomials of the shape function, so it is assembled from the moments ``sum g_i g_j dx^a dy^b``
+    (a + b <= 4), accumulated row by row; likewise ``sum J^T (f - f_m)`` and ``sum J^T``.
 
     Parameters
     ----------
@@ -182,7 +191,7 @@ def prepare_reference(image, grad_x, grad_y, x0, y0, half, order, min_std, f, fx
     f, fx, fy : ndarray of float64, shape ((2M+1)^2,)
         Out: zero-mean subset values and gradients, row-major.
     hinv : ndarray, shape (np, np)
-        Out: inverse Hessian (np = 6 or 12, compact parameter order, see :func:`compact_to_full`).
+        Out: inverse Hessian (np = 6 or 12: the parameters of :data:`_MONOMIALS` for x, then for y).
     a, s : ndarray, shape (np,)
         Out: sum J^T (f - f_m) and sum J^T.
 
@@ -201,58 +210,119 @@ def prepare_reference(image, grad_x, grad_y, x0, y0, half, order, min_std, f, fx
     total = 0.0
     for r in range(n):
         for c in range(n):
-            value = image[y0 - half + r, x0 - half + c]
-            if not np.isfinite(value):
-                return INVALID_IMAGE, 0.0, 0.0, 0.0
-            total += value
+            total += image[y0 - half + r, x0 - half + c]
+    if not np.isfinite(total):
+        return INVALID_IMAGE, 0.0, 0.0, 0.0
     mean = total / (n * n)
+    # moments[k, a, b]: k = 0 fx fx, 1 fx fy, 2 fy fy, 3 fx f, 4 fy f, 5 fx, 6 fy
+    moments = np.zeros((7, 5, 5))
+    dy_powers = np.empty(5)
     sum_sq = 0.0
-    sssig_x = 0.0
-    sssig_y = 0.0
-    nm = 3 if order == 1 else 6
-    npar = 2 * nm
-    h = np.zeros((npar, npar))
-    for k in range(npar):
-        a[k] = 0.0
-        s[k] = 0.0
-    jac = np.empty(npar)
     k = 0
     for r in range(n):
         dy = float(r - half)
+        xx0 = xx1 = xx2 = xx3 = xx4 = 0.0
+        xy0 = xy1 = xy2 = xy3 = xy4 = 0.0
+        yy0 = yy1 = yy2 = yy3 = yy4 = 0.0
+        xf0 = xf1 = xf2 = yf0 = yf1 = yf2 = 0.0
+        x0_ = x1_ = x2_ = y0_ = y1_ = y2_ = 0.0
+        row_sq = 0.0
         for c in range(n):
             dx = float(c - half)
+            dx2 = dx * dx
             value = image[y0 - half + r, x0 - half + c] - mean
             gx = grad_x[y0 - half + r, x0 - half + c]
             gy = grad_y[y0 - half + r, x0 - half + c]
-            f[k] = value
-            fx[k] = gx
-            fy[k] = gy
-            k += 1
-            sum_sq += value * value
-            sssig_x += gx * gx
-            sssig_y += gy * gy
-            jac[0] = gx
-            jac[1] = gx * dx
-            jac[2] = gx * dy
-            jac[nm] = gy
-            jac[nm + 1] = gy * dx
-            jac[nm + 2] = gy * dy
-            if order == 2:
-                jac[3] = 0.5 * gx * dx * dx
-                jac[4] = gx * dx * dy
-                jac[5] = 0.5 * gx * dy * dy
-                jac[9] = 0.5 * gy * dx * dx
-                jac[10] = gy * dx * dy
-                jac[11] = 0.5 * gy * dy * dy
-            for i in range(npar):
-                ji = jac[i]
-                a[i] += ji * value
-                s[i] += ji
-                for j in range(i, npar):
-                    h[i, j] += ji * jac[j]
-    for i in range(npar):
-        for j in range(i):
-            h[i, j] = h[j, i]
+            f[k + c] = value
+            fx[k + c] = gx
+            fy[k + c] = gy
+            row_sq += value * value
+            pxx = gx * gx
+            pxy = gx * gy
+            pyy = gy * gy
+            xx0 += pxx
+            xx1 += pxx * dx
+            xx2 += pxx * dx2
+            xx3 += pxx * dx2 * dx
+            xx4 += pxx * dx2 * dx2
+            xy0 += pxy
+            xy1 += pxy * dx
+            xy2 += pxy * dx2
+            xy3 += pxy * dx2 * dx
+            xy4 += pxy * dx2 * dx2
+            yy0 += pyy
+            yy1 += pyy * dx
+            yy2 += pyy * dx2
+            yy3 += pyy * dx2 * dx
+            yy4 += pyy * dx2 * dx2
+            xf0 += gx * value
+            xf1 += gx * value * dx
+            xf2 += gx * value * dx2
+            yf0 += gy * value
+            yf1 += gy * value * dx
+            yf2 += gy * value * dx2
+            x0_ += gx
+            x1_ += gx * dx
+            x2_ += gx * dx2
+            y0_ += gy
+            y1_ += gy * dx
+            y2_ += gy * dx2
+        k += n
+        sum_sq += row_sq
+        dy_powers[0] = 1.0
+        for b in range(1, 5):
+            dy_powers[b] = dy_powers[b - 1] * dy
+        for b in range(5):
+            w = dy_powers[b]
+            if b <= 4:
+                moments[0, 0, b] += xx0 * w
+                moments[1, 0, b] += xy0 * w
+                moments[2, 0, b] += yy0 * w
+            if b <= 3:
+                moments[0, 1, b] += xx1 * w
+                moments[1, 1, b] += xy1 * w
+                moments[2, 1, b] += yy1 * w
+            if b <= 2:
+                moments[0, 2, b] += xx2 * w
+                moments[1, 2, b] += xy2 * w
+                moments[2, 2, b] += yy2 * w
+                moments[3, 0, b] += xf0 * w
+                moments[4, 0, b] += yf0 * w
+                moments[5, 0, b] += x0_ * w
+                moments[6, 0, b] += y0_ * w
+            if b <= 1:
+                moments[0, 3, b] += xx3 * w
+                moments[1, 3, b] += xy3 * w
+                moments[2, 3, b] += yy3 * w
+                moments[3, 1, b] += xf1 * w
+                moments[4, 1, b] += yf1 * w
+                moments[5, 1, b] += x1_ * w
+                moments[6, 1, b] += y1_ * w
+            if b == 0:
+                moments[0, 4, b] += xx4 * w
+                moments[1, 4, b] += xy4 * w
+                moments[2, 4, b] += yy4 * w
+                moments[3, 2, b] += xf2 * w
+                moments[4, 2, b] += yf2 * w
+                moments[5, 2, b] += x2_ * w
+                moments[6, 2, b] += y2_ * w
+    sssig_x = moments[0, 0, 0]
+    sssig_y = moments[2, 0, 0]
+    nm = 3 if order == 1 else 6
+    npar = 2 * nm
+    h = np.empty((npar, npar))
+    for ci in range(2):
+        for i in range(nm):
+            ai = int(_MONOMIALS[i, 0])
+            bi = int(_MONOMIALS[i, 1])
+            wi = _MONOMIALS[i, 2]
+            a[ci * nm + i] = wi * moments[3 + ci, ai, bi]
+            s[ci * nm + i] = wi * moments[5 + ci, ai, bi]
+            for cj in range(2):
+                kind = ci + cj   # 0 xx, 1 xy, 2 yy
+                for j in range(nm):
+                    h[ci * nm + i, cj * nm + j] = wi * _MONOMIALS[j, 2] * moments[
+                        kind, ai + int(_MONOMIALS[j, 0]), bi + int(_MONOMIALS[j, 1])]
     std = np.sqrt(sum_sq / (n * n))
     if not std >= min_std:
         return LOW_TEXTURE, 0.0, sssig_x, sssig_y
