@@ -30,6 +30,7 @@ from scipy.spatial.transform import Rotation
 from measurement.calibration.detection import board_points_mm
 from measurement.calibration.stepwise import (
     MODELS,
+    SOLVERS,
     CalibrationError,
     calibrate_camera,
     calibrate_stereo,
@@ -262,6 +263,36 @@ def test_single_camera_is_deterministic(rig, mono_data, mono_cal):
     assert again.steps == mono_cal.steps
 
 
+def test_single_camera_same_minimum_as_minpack(rig, mono_data, mono_cal):
+    """The default structured LM (Schur complement) and scipy's MINPACK LM reach the same least-squares minimum.
+
+    Both stop on relative cost changes (1e-12 vs MINPACK's 1e-10), which resolve a parameter to about
+    sqrt(m tol) of its standard uncertainty (~1e-3 sigma for MINPACK here); 2e-3 sigma is that, with margin.
+    """
+    _, noisy = mono_data
+    ref = calibrate_camera(noisy, BOARD_MM, _image_size(rig), model="rmm", tilt_guess_deg=TILT_GUESS["left"],
+                           name="left camera", solver="minpack-lm")
+    assert SOLVERS == ("schur-lm", "minpack-lm")
+    print(f"\nschur-lm rms {mono_cal.rms_px:.10f} px, minpack-lm {ref.rms_px:.10f} px")
+    assert mono_cal.rms_px == pytest.approx(ref.rms_px, rel=1e-6)
+    # Every step's RMS too; steps 2-4 only to 1e-6: step 3 has a nearly flat direction (principal point against
+    # the poses, tilt fixed) along which the two solvers stop at different places, and step 4 starts from there.
+    assert [s[:2] for s in mono_cal.steps] == [s[:2] for s in ref.steps]
+    np.testing.assert_allclose([s[2] for s in mono_cal.steps], [s[2] for s in ref.steps], rtol=1e-6)
+    assert mono_cal.steps[-1][2] <= ref.steps[-1][2] * (1 + 1e-9)    # at least as far down as MINPACK
+    for name in INTRINSIC_NAMES:
+        assert abs(getattr(mono_cal.camera, name) - getattr(ref.camera, name)) <= 2e-3 * ref.sigma[name], name
+        assert mono_cal.sigma[name] == pytest.approx(ref.sigma[name], rel=1e-3), name
+    scale = np.hypot(ref.sigma["cx"], ref.sigma["cy"]) / ref.camera.fx       # frame rotation allowed by (cx, cy)
+    assert np.abs(mono_cal.rvecs - ref.rvecs).max() <= 2e-3 * scale
+
+
+def test_unknown_solver_raises(rig, mono_data):
+    _, noisy = mono_data
+    with pytest.raises(ValueError, match=r"unknown solver 'trf'; choose one of schur-lm, minpack-lm"):
+        calibrate_camera(noisy, BOARD_MM, _image_size(rig), solver="trf")
+
+
 # ------------------------------------------------------------------------------------------------------------
 # Stereo (steps 1-5 and the joint refinement)
 # ------------------------------------------------------------------------------------------------------------
@@ -412,6 +443,30 @@ def test_stereo_is_deterministic(rig, stereo):
     assert again.rms_px == cal.rms_px
     assert again.sigma_stereo == cal.sigma_stereo
     assert again.left.sigma == cal.left.sigma and again.right.sigma == cal.right.sigma
+
+
+def test_stereo_same_minimum_as_minpack(rig, stereo):
+    """The joint stereo solution of the default solver is MINPACK's (see the single-camera test for the bounds).
+
+    Measured: reprojection RMS equal to ~2e-8 relative, intrinsics and stereo pose within ~5e-4 of their
+    standard uncertainties (MINPACK stops earlier: tightened to 1e-15 it comes to 1e-4 sigma of the default),
+    standard uncertainties equal to ~2e-4 relative.
+    """
+    _, _, noisy, cal = stereo
+    ref = _calibrate_pair(rig, noisy, solver="minpack-lm")
+    for side in ("left", "right"):
+        assert cal.rms_px[side] == pytest.approx(ref.rms_px[side], rel=1e-6), side
+        c, r = getattr(cal, side), getattr(ref, side)
+        for name in INTRINSIC_NAMES:
+            assert abs(getattr(c.camera, name) - getattr(r.camera, name)) <= 2e-3 * r.sigma[name], (side, name)
+            assert c.sigma[name] == pytest.approx(r.sigma[name], rel=1e-3), (side, name)
+    assert cal.steps[-1][2] <= ref.steps[-1][2] * (1 + 1e-9)          # at least as far down as MINPACK
+    np.testing.assert_allclose([s[2] for s in cal.steps], [s[2] for s in ref.steps], rtol=1e-6)
+    sT = np.asarray(ref.sigma_stereo["T_mm"])
+    assert np.all(np.abs(cal.T_right_from_left_mm - ref.T_right_from_left_mm) <= 2e-3 * sT)
+    d_rvec = Rotation.from_matrix(cal.R_right_from_left @ ref.R_right_from_left.T).as_rotvec()
+    assert np.all(np.abs(d_rvec) <= 2e-3 * np.asarray(ref.sigma_stereo["rvec"]))
+    np.testing.assert_allclose(cal.sigma_stereo["T_mm"], ref.sigma_stereo["T_mm"], rtol=1e-3)
 
 
 def test_stereo_right_poses_are_consistent_with_the_stereo_pose(stereo):
