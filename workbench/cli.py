@@ -6,6 +6,7 @@
     workbench reproduce calibration [--scale F] [--seed S] [--spp N] --out DIR
     workbench calibrate --left GLOB --right GLOB --square-mm 5 --pattern 11x8 [--model rmm]
                         [--tilt-guess-deg A,B] --out calib.json
+    workbench reproduce dic-accuracy --out DIR
     workbench dic REF DEF [--roi X0,Y0,X1,Y1] [--subset 33] [--step 8] [--order 1|2]
                   [--interp biquintic|bicubic] [--seed-point X,Y] --out points.csv
 """
@@ -68,6 +69,8 @@ def _parser() -> argparse.ArgumentParser:
     rc.add_argument("--validation-views", type=_positive_int, default=20)
     rc.add_argument("--refine-corners", action="store_true", help="saddle-fit refinement of OpenCV's corners")
     rc.add_argument("--out", type=Path, required=True)
+    da = repsub.add_parser("dic-accuracy", help="DIC bias vs sub-pixel shift, noise floor, shape functions")
+    da.add_argument("--out", type=Path, required=True)
     dof = repsub.add_parser("depth-of-field", help="MIG of an oblique speckled plate: Scheimpflug vs untilted")
     dof.add_argument("--scale", type=_scale, default=1.0)
     dof.add_argument("--object-tilt-deg", type=float, default=38.0)
@@ -119,6 +122,16 @@ def _roi(text: str) -> tuple[int, int, int, int]:
     if len(values) != 4:
         raise argparse.ArgumentTypeError(f"roi must be X0,Y0,X1,Y1, got {text!r}")
     return values
+
+
+def _reproduce_dic_accuracy(args) -> int:
+    from workbench.experiments.dic_accuracy import reproduce_dic_accuracy
+
+    metrics = reproduce_dic_accuracy(args.out)
+    for curve in metrics["bias"]:
+        print(f"bias {curve['label']}: max {curve['max_abs_px']:.5f} px")
+    print(f"noise ratio std(u)/theory: {metrics['noise']['all']['ratio']:.3f}; wrote {args.out / 'report.md'}")
+    return 0
 
 
 def _dic(args) -> int:
@@ -292,7 +305,8 @@ def main(argv: list[str] | None = None) -> int:
                 ("reproduce", "depth-of-field"): _reproduce_depth_of_field,
                 ("reproduce", "calibration"): _reproduce_calibration,
                 ("calibrate", None): _calibrate,
-                ("dic", None): _dic}
+                ("dic", None): _dic,
+                ("reproduce", "dic-accuracy"): _reproduce_dic_accuracy}
     try:
         return handlers[(args.command, getattr(args, "what", None))](args)
     except (ValueError, OSError, RuntimeError) as err:
