@@ -56,62 +56,11 @@ def _quintic_w(t):
 
 
 @numba.njit(inline="always", fastmath=True)
-def _quintic_value(cf, cols, x, y):
-    """Biquintic value at (x, y) from the flattened coefficients ``cf`` (support inside, x, y >= 2)."""
-    ix = int(x)
-    iy = int(y)
-    x0, x1, x2, x3, x4, x5 = _quintic_w(x - ix)
-    y0, y1, y2, y3, y4, y5 = _quintic_w(y - iy)
-    # Unsigned flat indices: numba then emits no negative-index wraparound per load.
-    b = np.uint64((iy - 2) * cols + ix - 2)
-    stride = np.uint64(cols)
-    r = cf[b] * x0 + cf[b + 1] * x1 + cf[b + 2] * x2 + cf[b + 3] * x3 + cf[b + 4] * x4 + cf[b + 5] * x5
-    acc = y0 * r
-    b += stride
-    r = cf[b] * x0 + cf[b + 1] * x1 + cf[b + 2] * x2 + cf[b + 3] * x3 + cf[b + 4] * x4 + cf[b + 5] * x5
-    acc += y1 * r
-    b += stride
-    r = cf[b] * x0 + cf[b + 1] * x1 + cf[b + 2] * x2 + cf[b + 3] * x3 + cf[b + 4] * x4 + cf[b + 5] * x5
-    acc += y2 * r
-    b += stride
-    r = cf[b] * x0 + cf[b + 1] * x1 + cf[b + 2] * x2 + cf[b + 3] * x3 + cf[b + 4] * x4 + cf[b + 5] * x5
-    acc += y3 * r
-    b += stride
-    r = cf[b] * x0 + cf[b + 1] * x1 + cf[b + 2] * x2 + cf[b + 3] * x3 + cf[b + 4] * x4 + cf[b + 5] * x5
-    acc += y4 * r
-    b += stride
-    r = cf[b] * x0 + cf[b + 1] * x1 + cf[b + 2] * x2 + cf[b + 3] * x3 + cf[b + 4] * x4 + cf[b + 5] * x5
-    return acc + y5 * r
-
-
-@numba.njit(inline="always", fastmath=True)
 def _cubic_w(t):
     w3 = (1.0 / 6.0) * t * t * t
     w0 = (1.0 / 6.0) + 0.5 * t * (t - 1.0) - w3
     w2 = t + w0 - 2.0 * w3
     return w0, 1.0 - w0 - w2 - w3, w2, w3
-
-
-@numba.njit(inline="always", fastmath=True)
-def _cubic_value(cf, cols, x, y):
-    """Bicubic value at (x, y) from the flattened coefficients ``cf`` (support inside, x, y >= 1)."""
-    ix = int(x)
-    iy = int(y)
-    x0, x1, x2, x3 = _cubic_w(x - ix)
-    y0, y1, y2, y3 = _cubic_w(y - iy)
-    b = np.uint64((iy - 1) * cols + ix - 1)
-    stride = np.uint64(cols)
-    r = cf[b] * x0 + cf[b + 1] * x1 + cf[b + 2] * x2 + cf[b + 3] * x3
-    acc = y0 * r
-    b += stride
-    r = cf[b] * x0 + cf[b + 1] * x1 + cf[b + 2] * x2 + cf[b + 3] * x3
-    acc += y1 * r
-    b += stride
-    r = cf[b] * x0 + cf[b + 1] * x1 + cf[b + 2] * x2 + cf[b + 3] * x3
-    acc += y2 * r
-    b += stride
-    r = cf[b] * x0 + cf[b + 1] * x1 + cf[b + 2] * x2 + cf[b + 3] * x3
-    return acc + y3 * r
 
 
 # ---------------------------------------------------------------------------------------------------------
@@ -243,30 +192,31 @@ def prepare_reference(image, grad_x, grad_y, x0, y0, half, order, min_std, f, fx
             xx0 += pxx
             xx1 += pxx * dx
             xx2 += pxx * dx2
-            xx3 += pxx * dx2 * dx
-            xx4 += pxx * dx2 * dx2
             xy0 += pxy
             xy1 += pxy * dx
             xy2 += pxy * dx2
-            xy3 += pxy * dx2 * dx
-            xy4 += pxy * dx2 * dx2
             yy0 += pyy
             yy1 += pyy * dx
             yy2 += pyy * dx2
-            yy3 += pyy * dx2 * dx
-            yy4 += pyy * dx2 * dx2
             xf0 += gx * value
             xf1 += gx * value * dx
-            xf2 += gx * value * dx2
             yf0 += gy * value
             yf1 += gy * value * dx
-            yf2 += gy * value * dx2
             x0_ += gx
             x1_ += gx * dx
-            x2_ += gx * dx2
             y0_ += gy
             y1_ += gy * dx
-            y2_ += gy * dx2
+            if order == 2:   # loop-invariant: LLVM unswitches it, the first order skips these moments
+                xx3 += pxx * dx2 * dx
+                xx4 += pxx * dx2 * dx2
+                xy3 += pxy * dx2 * dx
+                xy4 += pxy * dx2 * dx2
+                yy3 += pyy * dx2 * dx
+                yy4 += pyy * dx2 * dx2
+                xf2 += gx * value * dx2
+                yf2 += gy * value * dx2
+                x2_ += gx * dx2
+                y2_ += gy * dx2
         k += n
         sum_sq += row_sq
         dy_powers[0] = 1.0
@@ -352,9 +302,39 @@ def _quadratic_range(a, b, c, half):
     return low, high
 
 
+@numba.njit(inline="always")
+def _warp_row(ax, bx, cx, ay, by, cy, half, xw, yw, ix_minus_c, iy):
+    """Warped positions of one subset row, and their integer cells (x cell minus the pixel index)."""
+    for c in range(2 * half + 1):
+        dx = float(c - half)
+        x = ax + dx * (bx + cx * dx)
+        y = ay + dx * (by + cy * dx)
+        xw[c] = x
+        yw[c] = y
+        ix_minus_c[c] = int(x) - c
+        iy[c] = int(y)
+
+
+@numba.njit(inline="always")
+def _run_end(ix_minus_c, iy, start, n):
+    """End of the run of pixels from ``start`` that share the same coefficient rows and column offset."""
+    end = start + 1
+    while end < n and ix_minus_c[end] == ix_minus_c[start] and iy[end] == iy[start]:
+        end += 1
+    return end
+
+
+# The row kernels split a warped subset row into runs of pixels whose 6 x 6 (or 4 x 4) coefficient windows
+# move by exactly one column per pixel: within a run the coefficient loads are unit-stride, so LLVM vectorises
+# the loop (AVX2: 4 pixels at a time) without gathers. A run ends where the x or y cell changes other than by
+# the step, i.e. about 1 + |ux| 2M + |vx| 2M times per row: long runs for small rotations and strains. Unsigned
+# indices keep numba from emitting negative-index wrap-around code that would block the vectoriser.
+
 @numba.njit(cache=True, fastmath=True)
-def _row_sums_quintic(cf, cols, ax, bx, cx, ay, by, cy, half, f, fx, fy, k0):
-    """Sums over one subset row of the deformed image sampled on the warped row (no bounds checks)."""
+def _row_sums_quintic(cf, cols, ax, bx, cx, ay, by, cy, half, f, fx, fy, k0, xw, yw, ix_minus_c, iy):
+    """Sums over one subset row of the deformed image sampled on the warped row (support inside)."""
+    n = 2 * half + 1
+    _warp_row(ax, bx, cx, ay, by, cy, half, xw, yw, ix_minus_c, iy)
     sum_g = 0.0
     sum_gg = 0.0
     sum_fg = 0.0
@@ -364,29 +344,57 @@ def _row_sums_quintic(cf, cols, ax, bx, cx, ay, by, cy, half, f, fx, fy, k0):
     ry0 = 0.0
     ry1 = 0.0
     ry2 = 0.0
-    for c in range(2 * half + 1):
-        dx = float(c - half)
-        xw = ax + dx * (bx + cx * dx)
-        yw = ay + dx * (by + cy * dx)
-        g = _quintic_value(cf, cols, xw, yw)
-        k = k0 + c
-        sum_g += g
-        sum_gg += g * g
-        sum_fg += f[k] * g
-        gxg = fx[k] * g
-        gyg = fy[k] * g
-        rx0 += gxg
-        rx1 += gxg * dx
-        rx2 += gxg * dx * dx
-        ry0 += gyg
-        ry1 += gyg * dx
-        ry2 += gyg * dx * dx
+    stride = np.uint64(cols)
+    one, two, three, four, five = np.uint64(1), np.uint64(2), np.uint64(3), np.uint64(4), np.uint64(5)
+    start = 0
+    while start < n:
+        end = _run_end(ix_minus_c, iy, start, n)
+        offset = ix_minus_c[start]
+        row = iy[start]
+        base = np.uint64((row - 2) * cols + offset - 2)
+        for cu in range(np.uint64(start), np.uint64(end)):
+            x0, x1, x2, x3, x4, x5 = _quintic_w(xw[cu] - (offset + np.int64(cu)))
+            y0, y1, y2, y3, y4, y5 = _quintic_w(yw[cu] - row)
+            b = base + cu
+            g = y0 * (cf[b] * x0 + cf[b + one] * x1 + cf[b + two] * x2 + cf[b + three] * x3
+                      + cf[b + four] * x4 + cf[b + five] * x5)
+            b += stride
+            g += y1 * (cf[b] * x0 + cf[b + one] * x1 + cf[b + two] * x2 + cf[b + three] * x3
+                       + cf[b + four] * x4 + cf[b + five] * x5)
+            b += stride
+            g += y2 * (cf[b] * x0 + cf[b + one] * x1 + cf[b + two] * x2 + cf[b + three] * x3
+                       + cf[b + four] * x4 + cf[b + five] * x5)
+            b += stride
+            g += y3 * (cf[b] * x0 + cf[b + one] * x1 + cf[b + two] * x2 + cf[b + three] * x3
+                       + cf[b + four] * x4 + cf[b + five] * x5)
+            b += stride
+            g += y4 * (cf[b] * x0 + cf[b + one] * x1 + cf[b + two] * x2 + cf[b + three] * x3
+                       + cf[b + four] * x4 + cf[b + five] * x5)
+            b += stride
+            g += y5 * (cf[b] * x0 + cf[b + one] * x1 + cf[b + two] * x2 + cf[b + three] * x3
+                       + cf[b + four] * x4 + cf[b + five] * x5)
+            k = np.uint64(k0) + cu
+            dx = float(np.int64(cu) - half)
+            sum_g += g
+            sum_gg += g * g
+            sum_fg += f[k] * g
+            gxg = fx[k] * g
+            gyg = fy[k] * g
+            rx0 += gxg
+            rx1 += gxg * dx
+            rx2 += gxg * dx * dx
+            ry0 += gyg
+            ry1 += gyg * dx
+            ry2 += gyg * dx * dx
+        start = end
     return sum_g, sum_gg, sum_fg, rx0, rx1, rx2, ry0, ry1, ry2
 
 
 @numba.njit(cache=True, fastmath=True)
-def _row_sums_cubic(cf, cols, ax, bx, cx, ay, by, cy, half, f, fx, fy, k0):
+def _row_sums_cubic(cf, cols, ax, bx, cx, ay, by, cy, half, f, fx, fy, k0, xw, yw, ix_minus_c, iy):
     """As :func:`_row_sums_quintic`, bicubic."""
+    n = 2 * half + 1
+    _warp_row(ax, bx, cx, ay, by, cy, half, xw, yw, ix_minus_c, iy)
     sum_g = 0.0
     sum_gg = 0.0
     sum_fg = 0.0
@@ -396,23 +404,39 @@ def _row_sums_cubic(cf, cols, ax, bx, cx, ay, by, cy, half, f, fx, fy, k0):
     ry0 = 0.0
     ry1 = 0.0
     ry2 = 0.0
-    for c in range(2 * half + 1):
-        dx = float(c - half)
-        xw = ax + dx * (bx + cx * dx)
-        yw = ay + dx * (by + cy * dx)
-        g = _cubic_value(cf, cols, xw, yw)
-        k = k0 + c
-        sum_g += g
-        sum_gg += g * g
-        sum_fg += f[k] * g
-        gxg = fx[k] * g
-        gyg = fy[k] * g
-        rx0 += gxg
-        rx1 += gxg * dx
-        rx2 += gxg * dx * dx
-        ry0 += gyg
-        ry1 += gyg * dx
-        ry2 += gyg * dx * dx
+    stride = np.uint64(cols)
+    one, two, three = np.uint64(1), np.uint64(2), np.uint64(3)
+    start = 0
+    while start < n:
+        end = _run_end(ix_minus_c, iy, start, n)
+        offset = ix_minus_c[start]
+        row = iy[start]
+        base = np.uint64((row - 1) * cols + offset - 1)
+        for cu in range(np.uint64(start), np.uint64(end)):
+            x0, x1, x2, x3 = _cubic_w(xw[cu] - (offset + np.int64(cu)))
+            y0, y1, y2, y3 = _cubic_w(yw[cu] - row)
+            b = base + cu
+            g = y0 * (cf[b] * x0 + cf[b + one] * x1 + cf[b + two] * x2 + cf[b + three] * x3)
+            b += stride
+            g += y1 * (cf[b] * x0 + cf[b + one] * x1 + cf[b + two] * x2 + cf[b + three] * x3)
+            b += stride
+            g += y2 * (cf[b] * x0 + cf[b + one] * x1 + cf[b + two] * x2 + cf[b + three] * x3)
+            b += stride
+            g += y3 * (cf[b] * x0 + cf[b + one] * x1 + cf[b + two] * x2 + cf[b + three] * x3)
+            k = np.uint64(k0) + cu
+            dx = float(np.int64(cu) - half)
+            sum_g += g
+            sum_gg += g * g
+            sum_fg += f[k] * g
+            gxg = fx[k] * g
+            gyg = fy[k] * g
+            rx0 += gxg
+            rx1 += gxg * dx
+            rx2 += gxg * dx * dx
+            ry0 += gyg
+            ry1 += gyg * dx
+            ry2 += gyg * dx * dx
+        start = end
     return sum_g, sum_gg, sum_fg, rx0, rx1, rx2, ry0, ry1, ry2
 
 
@@ -470,6 +494,10 @@ def iterate(coef, degree, bad, check_bad, x0, y0, half, order, f, fx, fy, delta_
     b = np.empty(npar)
     step = np.empty(npar)
     dp = np.zeros(12)
+    xw = np.empty(n)
+    yw = np.empty(n)
+    ix_minus_c = np.empty(n, dtype=np.int64)
+    iy = np.empty(n, dtype=np.int64)
     zncc = np.nan
     for iteration in range(1, max_iterations + 1):
         u, ux, uy, uxx, uxy, uyy = p[0], p[1], p[2], p[3], p[4], p[5]
@@ -495,10 +523,10 @@ def iterate(coef, degree, bad, check_bad, x0, y0, half, order, f, fx, fy, delta_
                 return INVALID_IMAGE, zncc, iteration
             if degree == 5:
                 sg, sgg, sfg, rx0, rx1, rx2, ry0, ry1, ry2 = _row_sums_quintic(
-                    cf, cols, ax, bx, cx, ay, by, cy, half, f, fx, fy, r * n)
+                    cf, cols, ax, bx, cx, ay, by, cy, half, f, fx, fy, r * n, xw, yw, ix_minus_c, iy)
             else:
                 sg, sgg, sfg, rx0, rx1, rx2, ry0, ry1, ry2 = _row_sums_cubic(
-                    cf, cols, ax, bx, cx, ay, by, cy, half, f, fx, fy, r * n)
+                    cf, cols, ax, bx, cx, ay, by, cy, half, f, fx, fy, r * n, xw, yw, ix_minus_c, iy)
             sum_g += sg
             sum_gg += sgg
             sum_fg += sfg
