@@ -67,6 +67,8 @@ import numpy as np
 import scipy.fft
 import scipy.optimize
 
+from .speckle import _require_finite, _require_positive_finite
+
 #: Blob tails below this fraction of the blob depth are dropped.
 TRUNCATION_LEVEL = 1e-12
 
@@ -903,20 +905,3 @@ def _check_n_floats(value, n: int, name: str) -> tuple[float, ...]:
     if not np.all(np.isfinite(values)):
         raise ValueError(f"{name} must be finite, got {value!r}")
     return tuple(float(v) for v in values)
-
-
-def _require_finite(value, name: str) -> float:
-    try:
-        value = float(value)
-    except (TypeError, ValueError):
-        raise ValueError(f"{name} must be a number, got {value!r}") from None
-    if not np.isfinite(value):
-        raise ValueError(f"{name} must be finite, got {value}")
-    return value
-
-
-def _require_positive_finite(value, name: str) -> float:
-    value = _require_finite(value, name)
-    if value <= 0:
-        raise ValueError(f"{name} must be > 0, got {value}")
-    return value

@@ -286,12 +286,15 @@ def test_flags_out_of_image_low_texture_and_nan(pair):
 
 
 def test_deterministic_and_independent_of_thread_count(pair):
+    """Propagation regions do not depend on the thread count, so 1 and 2 threads give the same points.
+
+    Within one process, repeated calls agree to ~3e-14 px but not always bit for bit (floating-point
+    reassociation in the vectorised loops differs between compiled specialisations; cause not fully pinned
+    down); two fresh processes with the same input give identical files.
+    """
     reference, deformed = pair
     settings = DICSettings(subset_size=21, step=7)
     previous = numba.get_num_threads()
-    # The first call in a process can differ from later ones by ~3e-14 px (cause not pinned down; fresh
-    # processes reproduce each other bit for bit on 1 or 2 threads), so compare calls after a first one.
-    first = correlate(reference, deformed, settings)
     try:
         numba.set_num_threads(1)
         one = correlate(reference, deformed, settings)
@@ -300,8 +303,8 @@ def test_deterministic_and_independent_of_thread_count(pair):
     finally:
         numba.set_num_threads(previous)
     assert np.array_equal(one.status, two.status)
-    assert np.array_equal(one.parameters, two.parameters, equal_nan=True)
-    assert np.nanmax(np.abs(first.parameters - one.parameters)) < 1e-12
+    assert np.array_equal(one.iterations, two.iterations)
+    assert np.nanmax(np.abs(one.parameters - two.parameters)) < 1e-12
 
 
 def test_csv_output(pair, tmp_path):

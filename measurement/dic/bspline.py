@@ -133,36 +133,29 @@ def pixel_gradients(coefficients: np.ndarray, degree: int) -> tuple[np.ndarray, 
 
 
 @numba.njit(inline="always", fastmath=True)
-def cubic_weights(t, w):
-    """Cubic B-spline weights for fraction ``t`` in [0, 1) into ``w[0:4]`` (nodes floor-1 .. floor+2)."""
+def cubic_weights(t):
+    """Cubic B-spline weights for fraction ``t`` in [0, 1), nodes floor-1 .. floor+2 (a 4-tuple)."""
     w3 = (1.0 / 6.0) * t * t * t
     w0 = (1.0 / 6.0) + 0.5 * t * (t - 1.0) - w3
     w2 = t + w0 - 2.0 * w3
-    w[0] = w0
-    w[1] = 1.0 - w0 - w2 - w3
-    w[2] = w2
-    w[3] = w3
+    return w0, 1.0 - w0 - w2 - w3, w2, w3
 
 
 @numba.njit(inline="always", fastmath=True)
-def quintic_weights(t, w):
-    """Quintic B-spline weights for fraction ``t`` in [0, 1) into ``w[0:6]`` (nodes floor-2 .. floor+3)."""
+def quintic_weights(t):
+    """Quintic B-spline weights for fraction ``t`` in [0, 1), nodes floor-2 .. floor+3 (a 6-tuple)."""
     t2 = t * t
     w5 = (1.0 / 120.0) * t * t2 * t2
     s2 = t2 - t
     s4 = s2 * s2
     h = t - 0.5
     q = s2 * (s2 - 3.0)
-    w[0] = (1.0 / 24.0) * (1.0 / 5.0 + s2 + s4) - w5
+    w0 = (1.0 / 24.0) * (1.0 / 5.0 + s2 + s4) - w5
     a0 = (1.0 / 24.0) * (s2 * (s2 - 5.0) + 46.0 / 5.0)
     a1 = (-1.0 / 12.0) * h * (q + 4.0)
-    w[2] = a0 + a1
-    w[3] = a0 - a1
     b0 = (1.0 / 16.0) * (9.0 / 5.0 - q)
     b1 = (1.0 / 24.0) * h * (s4 - s2 - 5.0)
-    w[1] = b0 + b1
-    w[4] = b0 - b1
-    w[5] = w5
+    return w0, b0 + b1, a0 + a1, a0 - a1, b0 - b1, w5
 
 
 @numba.njit(inline="always", fastmath=True)
@@ -231,13 +224,19 @@ def evaluate_point(coefficients, degree, x, y, out):
     dwx = np.empty(6)
     dwy = np.empty(6)
     if degree == 3:
-        cubic_weights(tx, wx)
-        cubic_weights(ty, wy)
+        wtx = cubic_weights(tx)
+        wty = cubic_weights(ty)
+        for j in range(4):
+            wx[j] = wtx[j]
+            wy[j] = wty[j]
         cubic_weight_derivatives(tx, dwx)
         cubic_weight_derivatives(ty, dwy)
     else:
-        quintic_weights(tx, wx)
-        quintic_weights(ty, wy)
+        wtx = quintic_weights(tx)
+        wty = quintic_weights(ty)
+        for j in range(6):
+            wx[j] = wtx[j]
+            wy[j] = wty[j]
         quintic_weight_derivatives(tx, dwx)
         quintic_weight_derivatives(ty, dwy)
     value = 0.0

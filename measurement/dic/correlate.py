@@ -352,8 +352,7 @@ def correlate(reference: np.ndarray, deformed: np.ndarray, settings: DICSettings
         ss = np.empty((xs.size, 2))
         correlate_batch(ref.values, ref.spline.grad_x, ref.spline.grad_y, dfm.spline.coefficients, degree, bad,
                         check_bad, xs, ys, half, settings.order, min_std, guesses, int(settings.max_iterations),
-                        float(settings.tolerance_px), st, zn, it, ss)
-        st[(st == CONVERGED) & ~(zn >= settings.min_zncc)] = int(Status.LOW_CORRELATION)
+                        float(settings.tolerance_px), float(settings.min_zncc), st, zn, it, ss)
         r, c = active_rc[:, 0], active_rc[:, 1]
         params[r, c] = guesses
         status[r, c] = st

@@ -19,9 +19,9 @@ import heapq
 import numba
 import numpy as np
 
-from .icgn import iterate, prepare_reference
+from .icgn import solve_point
 from .shape_functions import shift_parameters
-from .status import CONVERGED, LOW_CORRELATION, NOT_REACHED
+from .status import CONVERGED, NOT_REACHED
 
 
 #: ZNCC resolution of the propagation order. Points are taken best-correlated first, but ZNCC is rounded down to
@@ -33,28 +33,6 @@ PRIORITY_STEP = 0.01
 @numba.njit(inline="always")
 def _priority(zncc):
     return -np.floor(zncc / PRIORITY_STEP) * PRIORITY_STEP
-
-
-@numba.njit(cache=True)
-def _solve_point(image, grad_x, grad_y, coef, degree, bad, check_bad, x, y, half, order, min_std, p,
-                 max_iterations, tolerance_px, min_zncc):
-    npar = 6 if order == 1 else 12
-    n = 2 * half + 1
-    f = np.empty(n * n)
-    fx = np.empty(n * n)
-    fy = np.empty(n * n)
-    hinv = np.empty((npar, npar))
-    a = np.empty(npar)
-    s = np.empty(npar)
-    status, delta_f, sx, sy = prepare_reference(image, grad_x, grad_y, x, y, half, order, min_std, f, fx, fy,
-                                                hinv, a, s)
-    if status != CONVERGED:
-        return status, np.nan, 0, sx, sy
-    status, zncc, iterations = iterate(coef, degree, bad, check_bad, x, y, half, order, f, fx, fy, delta_f, hinv,
-                                       a, s, p, max_iterations, tolerance_px)
-    if status == CONVERGED and not zncc >= min_zncc:
-        status = LOW_CORRELATION
-    return status, zncc, iterations, sx, sy
 
 
 @numba.njit(cache=True)
@@ -71,7 +49,7 @@ def _propagate_region(image, grad_x, grad_y, coef, degree, bad, check_bad, grid_
             continue
         for j in range(12):
             guess[j] = seed_p[k, j]
-        st, score, it, sx, sy = _solve_point(image, grad_x, grad_y, coef, degree, bad, check_bad, grid_x[r, c],
+        st, score, it, sx, sy = solve_point(image, grad_x, grad_y, coef, degree, bad, check_bad, grid_x[r, c],
                                              grid_y[r, c], half, order, min_std, guess, max_iterations,
                                              tolerance_px, min_zncc)
         # A seed that fails leaves its point free for a neighbour to reach later.
@@ -112,7 +90,7 @@ def _propagate_region(image, grad_x, grad_y, coef, degree, bad, check_bad, grid_
                 continue
             shift_parameters(source, float(grid_x[r, c] - grid_x[r0, c0]), float(grid_y[r, c] - grid_y[r0, c0]),
                              guess)
-            st, score, it, sx, sy = _solve_point(image, grad_x, grad_y, coef, degree, bad, check_bad,
+            st, score, it, sx, sy = solve_point(image, grad_x, grad_y, coef, degree, bad, check_bad,
                                                  grid_x[r, c], grid_y[r, c], half, order, min_std, guess,
                                                  max_iterations, tolerance_px, min_zncc)
             status[r, c] = st

@@ -28,39 +28,13 @@ from __future__ import annotations
 import numba
 import numpy as np
 
+from .bspline import cubic_weights, quintic_weights
 from .shape_functions import compose_inverse
-from .status import (CONVERGED, DIVERGED, INVALID_IMAGE, LOW_TEXTURE, MAX_ITERATIONS, OUT_OF_IMAGE)
+from .status import (CONVERGED, DIVERGED, INVALID_IMAGE, LOW_CORRELATION, LOW_TEXTURE, MAX_ITERATIONS,
+                     OUT_OF_IMAGE)
 
 #: Largest |u| or |v| update (px) accepted in one iteration before the point is declared diverged.
 MAX_STEP_PX = 50.0
-
-
-# ---------------------------------------------------------------------------------------------------------
-# Interpolation of the deformed image, unrolled for speed (weights as in bspline.quintic/cubic_weights).
-# ---------------------------------------------------------------------------------------------------------
-
-@numba.njit(inline="always", fastmath=True)
-def _quintic_w(t):
-    t2 = t * t
-    w5 = (1.0 / 120.0) * t * t2 * t2
-    s2 = t2 - t
-    s4 = s2 * s2
-    h = t - 0.5
-    q = s2 * (s2 - 3.0)
-    w0 = (1.0 / 24.0) * (1.0 / 5.0 + s2 + s4) - w5
-    a0 = (1.0 / 24.0) * (s2 * (s2 - 5.0) + 46.0 / 5.0)
-    a1 = (-1.0 / 12.0) * h * (q + 4.0)
-    b0 = (1.0 / 16.0) * (9.0 / 5.0 - q)
-    b1 = (1.0 / 24.0) * h * (s4 - s2 - 5.0)
-    return w0, b0 + b1, a0 + a1, a0 - a1, b0 - b1, w5
-
-
-@numba.njit(inline="always", fastmath=True)
-def _cubic_w(t):
-    w3 = (1.0 / 6.0) * t * t * t
-    w0 = (1.0 / 6.0) + 0.5 * t * (t - 1.0) - w3
-    w2 = t + w0 - 2.0 * w3
-    return w0, 1.0 - w0 - w2 - w3, w2, w3
 
 
 # ---------------------------------------------------------------------------------------------------------
@@ -324,15 +298,18 @@ def _run_end(ix_minus_c, iy, start, n):
     return end
 
 
-# The row kernels split a warped subset row into runs of pixels whose 6 x 6 (or 4 x 4) coefficient windows
+# The row kernel splits a warped subset row into runs of pixels whose 6 x 6 (or 4 x 4) coefficient windows
 # move by exactly one column per pixel: within a run the coefficient loads are unit-stride, so LLVM vectorises
 # the loop (AVX2: 4 pixels at a time) without gathers. A run ends where the x or y cell changes other than by
 # the step, i.e. about 1 + |ux| 2M + |vx| 2M times per row: long runs for small rotations and strains. Unsigned
 # indices keep numba from emitting negative-index wrap-around code that would block the vectoriser.
 
 @numba.njit(cache=True, fastmath=True)
-def _row_sums_quintic(cf, cols, ax, bx, cx, ay, by, cy, half, f, fx, fy, k0, xw, yw, ix_minus_c, iy):
-    """Sums over one subset row of the deformed image sampled on the warped row (support inside)."""
+def _row_sums(cf, cols, degree, ax, bx, cx, ay, by, cy, half, f, fx, fy, k0, xw, yw, ix_minus_c, iy):
+    """Sums over one subset row of the deformed image sampled on the warped row (support inside).
+
+    ``degree`` (5 or 3) is loop-invariant: LLVM unswitches it into two vectorised loops.
+    """
     n = 2 * half + 1
     _warp_row(ax, bx, cx, ay, by, cy, half, xw, yw, ix_minus_c, iy)
     sum_g = 0.0
@@ -346,83 +323,47 @@ def _row_sums_quintic(cf, cols, ax, bx, cx, ay, by, cy, half, f, fx, fy, k0, xw,
     ry2 = 0.0
     stride = np.uint64(cols)
     one, two, three, four, five = np.uint64(1), np.uint64(2), np.uint64(3), np.uint64(4), np.uint64(5)
+    lo = 2 if degree == 5 else 1
     start = 0
     while start < n:
         end = _run_end(ix_minus_c, iy, start, n)
         offset = ix_minus_c[start]
         row = iy[start]
-        base = np.uint64((row - 2) * cols + offset - 2)
+        base = np.uint64((row - lo) * cols + offset - lo)
         for cu in range(np.uint64(start), np.uint64(end)):
-            x0, x1, x2, x3, x4, x5 = _quintic_w(xw[cu] - (offset + np.int64(cu)))
-            y0, y1, y2, y3, y4, y5 = _quintic_w(yw[cu] - row)
+            tx = xw[cu] - (offset + np.int64(cu))
+            ty = yw[cu] - row
             b = base + cu
-            g = y0 * (cf[b] * x0 + cf[b + one] * x1 + cf[b + two] * x2 + cf[b + three] * x3
-                      + cf[b + four] * x4 + cf[b + five] * x5)
-            b += stride
-            g += y1 * (cf[b] * x0 + cf[b + one] * x1 + cf[b + two] * x2 + cf[b + three] * x3
-                       + cf[b + four] * x4 + cf[b + five] * x5)
-            b += stride
-            g += y2 * (cf[b] * x0 + cf[b + one] * x1 + cf[b + two] * x2 + cf[b + three] * x3
-                       + cf[b + four] * x4 + cf[b + five] * x5)
-            b += stride
-            g += y3 * (cf[b] * x0 + cf[b + one] * x1 + cf[b + two] * x2 + cf[b + three] * x3
-                       + cf[b + four] * x4 + cf[b + five] * x5)
-            b += stride
-            g += y4 * (cf[b] * x0 + cf[b + one] * x1 + cf[b + two] * x2 + cf[b + three] * x3
-                       + cf[b + four] * x4 + cf[b + five] * x5)
-            b += stride
-            g += y5 * (cf[b] * x0 + cf[b + one] * x1 + cf[b + two] * x2 + cf[b + three] * x3
-                       + cf[b + four] * x4 + cf[b + five] * x5)
-            k = np.uint64(k0) + cu
-            dx = float(np.int64(cu) - half)
-            sum_g += g
-            sum_gg += g * g
-            sum_fg += f[k] * g
-            gxg = fx[k] * g
-            gyg = fy[k] * g
-            rx0 += gxg
-            rx1 += gxg * dx
-            rx2 += gxg * dx * dx
-            ry0 += gyg
-            ry1 += gyg * dx
-            ry2 += gyg * dx * dx
-        start = end
-    return sum_g, sum_gg, sum_fg, rx0, rx1, rx2, ry0, ry1, ry2
-
-
-@numba.njit(cache=True, fastmath=True)
-def _row_sums_cubic(cf, cols, ax, bx, cx, ay, by, cy, half, f, fx, fy, k0, xw, yw, ix_minus_c, iy):
-    """As :func:`_row_sums_quintic`, bicubic."""
-    n = 2 * half + 1
-    _warp_row(ax, bx, cx, ay, by, cy, half, xw, yw, ix_minus_c, iy)
-    sum_g = 0.0
-    sum_gg = 0.0
-    sum_fg = 0.0
-    rx0 = 0.0
-    rx1 = 0.0
-    rx2 = 0.0
-    ry0 = 0.0
-    ry1 = 0.0
-    ry2 = 0.0
-    stride = np.uint64(cols)
-    one, two, three = np.uint64(1), np.uint64(2), np.uint64(3)
-    start = 0
-    while start < n:
-        end = _run_end(ix_minus_c, iy, start, n)
-        offset = ix_minus_c[start]
-        row = iy[start]
-        base = np.uint64((row - 1) * cols + offset - 1)
-        for cu in range(np.uint64(start), np.uint64(end)):
-            x0, x1, x2, x3 = _cubic_w(xw[cu] - (offset + np.int64(cu)))
-            y0, y1, y2, y3 = _cubic_w(yw[cu] - row)
-            b = base + cu
-            g = y0 * (cf[b] * x0 + cf[b + one] * x1 + cf[b + two] * x2 + cf[b + three] * x3)
-            b += stride
-            g += y1 * (cf[b] * x0 + cf[b + one] * x1 + cf[b + two] * x2 + cf[b + three] * x3)
-            b += stride
-            g += y2 * (cf[b] * x0 + cf[b + one] * x1 + cf[b + two] * x2 + cf[b + three] * x3)
-            b += stride
-            g += y3 * (cf[b] * x0 + cf[b + one] * x1 + cf[b + two] * x2 + cf[b + three] * x3)
+            if degree == 5:
+                x0, x1, x2, x3, x4, x5 = quintic_weights(tx)
+                y0, y1, y2, y3, y4, y5 = quintic_weights(ty)
+                g = y0 * (cf[b] * x0 + cf[b + one] * x1 + cf[b + two] * x2 + cf[b + three] * x3
+                          + cf[b + four] * x4 + cf[b + five] * x5)
+                b += stride
+                g += y1 * (cf[b] * x0 + cf[b + one] * x1 + cf[b + two] * x2 + cf[b + three] * x3
+                           + cf[b + four] * x4 + cf[b + five] * x5)
+                b += stride
+                g += y2 * (cf[b] * x0 + cf[b + one] * x1 + cf[b + two] * x2 + cf[b + three] * x3
+                           + cf[b + four] * x4 + cf[b + five] * x5)
+                b += stride
+                g += y3 * (cf[b] * x0 + cf[b + one] * x1 + cf[b + two] * x2 + cf[b + three] * x3
+                           + cf[b + four] * x4 + cf[b + five] * x5)
+                b += stride
+                g += y4 * (cf[b] * x0 + cf[b + one] * x1 + cf[b + two] * x2 + cf[b + three] * x3
+                           + cf[b + four] * x4 + cf[b + five] * x5)
+                b += stride
+                g += y5 * (cf[b] * x0 + cf[b + one] * x1 + cf[b + two] * x2 + cf[b + three] * x3
+                           + cf[b + four] * x4 + cf[b + five] * x5)
+            else:
+                x0, x1, x2, x3 = cubic_weights(tx)
+                y0, y1, y2, y3 = cubic_weights(ty)
+                g = y0 * (cf[b] * x0 + cf[b + one] * x1 + cf[b + two] * x2 + cf[b + three] * x3)
+                b += stride
+                g += y1 * (cf[b] * x0 + cf[b + one] * x1 + cf[b + two] * x2 + cf[b + three] * x3)
+                b += stride
+                g += y2 * (cf[b] * x0 + cf[b + one] * x1 + cf[b + two] * x2 + cf[b + three] * x3)
+                b += stride
+                g += y3 * (cf[b] * x0 + cf[b + one] * x1 + cf[b + two] * x2 + cf[b + three] * x3)
             k = np.uint64(k0) + cu
             dx = float(np.int64(cu) - half)
             sum_g += g
@@ -521,12 +462,8 @@ def iterate(coef, degree, bad, check_bad, x0, y0, half, order, f, fx, fy, delta_
                 return OUT_OF_IMAGE, zncc, iteration
             if check_bad and _row_touches_bad(bad, ax, bx, cx, ay, by, cy, half):
                 return INVALID_IMAGE, zncc, iteration
-            if degree == 5:
-                sg, sgg, sfg, rx0, rx1, rx2, ry0, ry1, ry2 = _row_sums_quintic(
-                    cf, cols, ax, bx, cx, ay, by, cy, half, f, fx, fy, r * n, xw, yw, ix_minus_c, iy)
-            else:
-                sg, sgg, sfg, rx0, rx1, rx2, ry0, ry1, ry2 = _row_sums_cubic(
-                    cf, cols, ax, bx, cx, ay, by, cy, half, f, fx, fy, r * n, xw, yw, ix_minus_c, iy)
+            sg, sgg, sfg, rx0, rx1, rx2, ry0, ry1, ry2 = _row_sums(
+                cf, cols, degree, ax, bx, cx, ay, by, cy, half, f, fx, fy, r * n, xw, yw, ix_minus_c, iy)
             sum_g += sg
             sum_gg += sgg
             sum_fg += sfg
@@ -578,41 +515,48 @@ def iterate(coef, degree, bad, check_bad, x0, y0, half, order, f, fx, fy, delta_
     return MAX_ITERATIONS, zncc, max_iterations
 
 
+@numba.njit(cache=True)
+def solve_point(image, grad_x, grad_y, coef, degree, bad, check_bad, x, y, half, order, min_std, p,
+                max_iterations, tolerance_px, min_zncc):
+    """Reference precomputation and IC-GN for one point; ``p`` (12,) is updated in place.
+
+    Returns (status, zncc, iterations, sssig_x, sssig_y); a converged point below ``min_zncc`` gets
+    LOW_CORRELATION.
+    """
+    npar = 6 if order == 1 else 12
+    n = 2 * half + 1
+    f = np.empty(n * n)
+    fx = np.empty(n * n)
+    fy = np.empty(n * n)
+    hinv = np.empty((npar, npar))
+    a = np.empty(npar)
+    s = np.empty(npar)
+    status, delta_f, sx, sy = prepare_reference(image, grad_x, grad_y, x, y, half, order, min_std, f, fx, fy,
+                                                hinv, a, s)
+    if status != CONVERGED:
+        return status, np.nan, 0, sx, sy
+    status, zncc, iterations = iterate(coef, degree, bad, check_bad, x, y, half, order, f, fx, fy, delta_f, hinv,
+                                       a, s, p, max_iterations, tolerance_px)
+    if status == CONVERGED and not zncc >= min_zncc:
+        status = LOW_CORRELATION
+    return status, zncc, iterations, sx, sy
+
+
 @numba.njit(cache=True, parallel=True)
 def correlate_batch(image, grad_x, grad_y, coef, degree, bad, check_bad, xs, ys, half, order, min_std, p,
-                    max_iterations, tolerance_px, status, zncc, iterations, sssig):
+                    max_iterations, tolerance_px, min_zncc, status, zncc, iterations, sssig):
     """IC-GN on many points in parallel, each from its own initial guess ``p[k]`` (updated in place).
 
     Outputs ``status``, ``zncc``, ``iterations`` (n,) and ``sssig`` (n, 2) are filled per point.
     """
-    npar = 6 if order == 1 else 12
-    n = 2 * half + 1
     for k in numba.prange(xs.shape[0]):
-        f = np.empty(n * n)
-        fx = np.empty(n * n)
-        fy = np.empty(n * n)
-        hinv = np.empty((npar, npar))
-        a = np.empty(npar)
-        s = np.empty(npar)
-        st, delta_f, sx, sy = prepare_reference(image, grad_x, grad_y, xs[k], ys[k], half, order, min_std,
-                                                f, fx, fy, hinv, a, s)
-        sssig[k, 0] = sx
-        sssig[k, 1] = sy
-        if st != CONVERGED:
-            status[k] = st
-            zncc[k] = np.nan
-            iterations[k] = 0
-            continue
-        st, c, it = iterate(coef, degree, bad, check_bad, xs[k], ys[k], half, order, f, fx, fy, delta_f, hinv,
-                            a, s, p[k], max_iterations, tolerance_px)
+        st, c, it, sx, sy = solve_point(image, grad_x, grad_y, coef, degree, bad, check_bad, xs[k], ys[k], half,
+                                        order, min_std, p[k], max_iterations, tolerance_px, min_zncc)
         status[k] = st
         zncc[k] = c
         iterations[k] = it
-
-
-def compact_size(order: int) -> int:
-    """Number of IC-GN parameters: 6 for a first-order, 12 for a second-order shape function."""
-    return 6 if order == 1 else 12
+        sssig[k, 0] = sx
+        sssig[k, 1] = sy
 
 
 @numba.njit(cache=True, parallel=True)
@@ -631,3 +575,8 @@ def reference_status(image, grad_x, grad_y, xs, ys, half, order, min_std):
         out[k] = prepare_reference(image, grad_x, grad_y, xs[k], ys[k], half, order, min_std, f, fx, fy, hinv, a,
                                    s)[0]
     return out
+
+
+def compact_size(order: int) -> int:
+    """Number of IC-GN parameters: 6 for a first-order, 12 for a second-order shape function."""
+    return 6 if order == 1 else 12
