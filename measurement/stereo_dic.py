@@ -1,0 +1,257 @@
+"""Stereo-DIC: match, triangulate and difference, following the paper's strategy (§3).
+
+Every image is correlated to the LEFT REFERENCE image: left-ref -> right-ref gives the reference shape,
+left-ref -> left-def and left-ref -> right-def give each deformed state. Points of interest live on the left
+reference image, so a point's identity (its material point) is the same in every state.
+
+The left/right match has a large disparity and a perspective distortion (stereo angle ~23 deg, different
+sensor tilts), so its seeds come from feature matches: SIFT key points matched with Lowe's ratio test, outliers
+removed with a RANSAC fundamental matrix, then a local affine fit of the matches around each seed node gives
+the initial first-order shape; the second-order shape function absorbs the rest. No manual seed is needed.
+
+Displacements are ``U = X_def - X_ref`` in the left camera frame (mm); ``D = |U|`` is the paper's displacement
+magnitude.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+
+from measurement.camera import ScheimpflugCamera
+from measurement.dic import DICResult, DICSettings, PoiGrid, Seed, Status, correlate, poi_grid
+from measurement.dic.guide import band_regions
+from measurement.dic.initial import translation_parameters
+from measurement.stereo import triangulate
+
+#: Default matching settings for stereo: the paper's 65 px subset (it quotes 64) and step 5, second order.
+STEREO_DIC_SETTINGS = DICSettings(subset_size=65, step=5, order=2, min_zncc=0.8)
+
+
+class StereoMatchError(ValueError):
+    """A stereo match could not be started (no features, no seeds)."""
+
+
+@dataclass(frozen=True)
+class FeatureMatches:
+    """Inlier feature matches between two images.
+
+    Attributes
+    ----------
+    reference_xy, target_xy : ndarray, shape (K, 2)
+        Matched key-point positions (x = column, y = row), px.
+    """
+
+    reference_xy: np.ndarray
+    target_xy: np.ndarray
+
+
+def _as_uint8(image: np.ndarray) -> np.ndarray:
+    image = np.asarray(image)
+    if image.dtype == np.uint8:
+        return image
+    finite = np.isfinite(image)
+    low, high = np.percentile(image[finite], [0.1, 99.9]) if finite.any() else (0.0, 1.0)
+    scaled = (np.where(finite, image, low) - low) * (255.0 / max(high - low, 1e-12))
+    return np.clip(scaled, 0, 255).astype(np.uint8)
+
+
+def match_features(reference: np.ndarray, target: np.ndarray, ratio: float = 0.75,
+                   max_features: int = 20000, ransac_px: float = 1.0, name: str = "target") -> FeatureMatches:
+    """SIFT matches between two grey images, filtered by the ratio test and a RANSAC fundamental matrix.
+
+    Raises
+    ------
+    StereoMatchError
+        When fewer than 8 matches survive (no common texture, or no overlap): ``name`` says which image.
+    """
+    sift = cv2.SIFT_create(nfeatures=max_features)
+    kp_ref, desc_ref = sift.detectAndCompute(_as_uint8(reference), None)
+    kp_tgt, desc_tgt = sift.detectAndCompute(_as_uint8(target), None)
+    if desc_ref is None or desc_tgt is None or len(kp_ref) < 8 or len(kp_tgt) < 8:
+        raise StereoMatchError(f"too few features to match the reference to the {name} image "
+                               f"({0 if desc_ref is None else len(kp_ref)} and {0 if desc_tgt is None else len(kp_tgt)})")
+    matcher = cv2.FlannBasedMatcher({"algorithm": 1, "trees": 5}, {"checks": 64})
+    pairs = matcher.knnMatch(desc_ref, desc_tgt, k=2)
+    good = [m for m, *rest in pairs if rest and m.distance < ratio * rest[0].distance]
+    if len(good) < 8:
+        raise StereoMatchError(f"only {len(good)} feature matches between the reference and the {name} image: "
+                               "do the images overlap?")
+    ref_xy = np.array([kp_ref[m.queryIdx].pt for m in good], dtype=np.float64)
+    tgt_xy = np.array([kp_tgt[m.trainIdx].pt for m in good], dtype=np.float64)
+    _, inliers = cv2.findFundamentalMat(ref_xy, tgt_xy, cv2.FM_RANSAC, ransac_px, 0.999)
+    if inliers is None or int(inliers.sum()) < 8:
+        raise StereoMatchError(f"feature matches to the {name} image are inconsistent (no epipolar geometry found)")
+    keep = inliers.ravel().astype(bool)
+    return FeatureMatches(ref_xy[keep], tgt_xy[keep])
+
+
+def affine_seed(matches: FeatureMatches, x: int, y: int, radius_px: float, min_matches: int = 8) -> Seed | None:
+    """First-order guess at POI (x, y) from the feature matches within ``radius_px`` (least-squares affine).
+
+    Returns None when fewer than ``min_matches`` lie within the radius or they are degenerate (collinear).
+    """
+    d = matches.reference_xy - np.array([x, y], dtype=np.float64)
+    near = np.hypot(d[:, 0], d[:, 1]) <= radius_px
+    if near.sum() < min_matches:
+        return None
+    design = np.column_stack([np.ones(near.sum()), d[near]])
+    if np.linalg.matrix_rank(design) < 3:
+        return None
+    target = matches.target_xy[near] - np.array([x, y], dtype=np.float64)
+    coefficients, *_ = np.linalg.lstsq(design, target, rcond=None)   # rows: offset, d/dx, d/dy
+    residual = target - design @ coefficients
+    rms = float(np.sqrt(np.mean(np.sum(residual ** 2, axis=1))))
+    p = translation_parameters(coefficients[0, 0], coefficients[0, 1])
+    p[1] = coefficients[1, 0] - 1.0   # ux
+    p[2] = coefficients[2, 0]         # uy
+    p[7] = coefficients[1, 1]         # vx
+    p[8] = coefficients[2, 1] - 1.0   # vy
+    # Score: a seed whose local affine fits its matches well is tried first.
+    return Seed(int(x), int(y), p, zncc=-rms)
+
+
+def feature_seeds(matches: FeatureMatches, grid: PoiGrid, regions: int, per_region: int = 6,
+                  radius_px: float | None = None) -> list[Seed]:
+    """Seeds from feature matches: up to ``per_region`` nodes per propagation band, nearest its centre first."""
+    radius_px = radius_px or max(3.0 * grid.subset_size, 100.0)
+    region = band_regions(grid.shape, regions)
+    seeds = []
+    for region_id in range(int(region.max()) + 1):
+        rows, cols = np.nonzero(grid.active & (region == region_id))
+        if rows.size == 0:
+            continue
+        order = np.argsort((rows - rows.mean()) ** 2 + (cols - cols.mean()) ** 2, kind="stable")
+        found = 0
+        for k in order[:: max(1, rows.size // 64)]:
+            seed = affine_seed(matches, int(grid.x[rows[k], cols[k]]), int(grid.y[rows[k], cols[k]]), radius_px)
+            if seed is not None:
+                seeds.append(seed)
+                found += 1
+                if found >= per_region:
+                    break
+    return seeds
+
+
+def correlate_with_features(reference: np.ndarray, target: np.ndarray, settings: DICSettings, grid: PoiGrid,
+                            name: str = "target") -> DICResult:
+    """DIC of ``reference`` -> ``target`` over ``grid``, seeded by feature matches (any disparity/rotation)."""
+    matches = match_features(reference, target, name=name)
+    seeds = feature_seeds(matches, grid, settings.regions)
+    if not seeds:
+        raise StereoMatchError(f"no seed could be placed for the {name} image: too few feature matches inside "
+                               "the region of interest")
+    return correlate(reference, target, settings, grid=grid, seeds=seeds)
+
+
+# ---------------------------------------------------------------------------------------------------------
+
+@dataclass
+class StereoShape:
+    """The reference shape: left-ref -> right-ref match and the triangulated points.
+
+    Attributes
+    ----------
+    x, y : ndarray of int64, shape (N,)
+        POIs on the left reference image, px.
+    right_match : DICResult
+        Left-ref -> right-ref DIC.
+    X_mm : ndarray, shape (N, 3)
+        Points in the left camera frame, mm (NaN where invalid).
+    residual_px : ndarray, shape (N,)
+        RMS reprojection residual of the triangulation, px.
+    valid : ndarray of bool, shape (N,)
+    """
+
+    x: np.ndarray
+    y: np.ndarray
+    right_match: DICResult
+    X_mm: np.ndarray
+    residual_px: np.ndarray
+    valid: np.ndarray
+    grid: PoiGrid = field(repr=False)
+
+
+@dataclass
+class StereoState:
+    """One deformed state measured against the reference shape (arrays over the same N points).
+
+    Attributes
+    ----------
+    X_mm, U_mm : ndarray, shape (N, 3)
+        Deformed position and displacement ``X_def - X_ref`` in the left camera frame, mm.
+    D_mm : ndarray, shape (N,)
+        Displacement magnitude |U|, mm.
+    residual_px : ndarray, shape (N,)
+        Triangulation residual of the deformed state, px.
+    zncc : ndarray, shape (N,)
+        Lowest ZNCC of the three matches the point relies on.
+    status : ndarray of int8, shape (N,)
+        :class:`Status` of the first match that failed for this point, CONVERGED if all three did (a point that
+        converged everywhere but could not be triangulated is DIVERGED).
+    left_match, right_match : DICResult
+        Left-ref -> left-def and left-ref -> right-def DIC.
+    """
+
+    X_mm: np.ndarray
+    U_mm: np.ndarray
+    D_mm: np.ndarray
+    residual_px: np.ndarray
+    zncc: np.ndarray
+    status: np.ndarray
+    left_match: DICResult
+    right_match: DICResult
+
+    @property
+    def valid(self) -> np.ndarray:
+        return self.status == Status.CONVERGED
+
+
+def _check_rig_images(left: ScheimpflugCamera, right: ScheimpflugCamera, images: dict[str, np.ndarray]) -> None:
+    for name, image in images.items():
+        camera = left if name.startswith("left") else right
+        shape = np.asarray(image).shape
+        if len(shape) != 2:
+            raise ValueError(f"{name} image must be 2-D grey, got shape {shape}")
+        if (shape[1], shape[0]) != (camera.width, camera.height):
+            raise ValueError(f"{name} image is {shape[1]} x {shape[0]} px but the calibration is for "
+                             f"{camera.width} x {camera.height} px")
+
+
+def reference_shape(left: ScheimpflugCamera, right: ScheimpflugCamera, R_right_from_left, T_right_from_left_mm,
+                    left_ref: np.ndarray, right_ref: np.ndarray, settings: DICSettings = STEREO_DIC_SETTINGS, *,
+                    roi=None, mask=None) -> StereoShape:
+    """Match left-ref -> right-ref (feature seeds) and triangulate the reference shape."""
+    _check_rig_images(left, right, {"left reference": left_ref, "right reference": right_ref})
+    grid = poi_grid(np.asarray(left_ref).shape, settings.subset_size, settings.step, roi=roi, mask=mask)
+    match = correlate_with_features(left_ref, right_ref, settings, grid, name="right reference")
+    pixels_left = np.column_stack([match.x, match.y]).astype(np.float64)
+    pixels_right = pixels_left + np.column_stack([match.u, match.v])
+    tri = triangulate(left, right, R_right_from_left, T_right_from_left_mm, pixels_left, pixels_right)
+    return StereoShape(match.x, match.y, match, tri.X_left_mm, tri.reprojection_error_px, tri.valid & match.converged,
+                       grid)
+
+
+def measure_state(left: ScheimpflugCamera, right: ScheimpflugCamera, R_right_from_left, T_right_from_left_mm,
+                  shape: StereoShape, left_ref: np.ndarray, left_def: np.ndarray, right_def: np.ndarray,
+                  settings: DICSettings = STEREO_DIC_SETTINGS) -> StereoState:
+    """Match left-ref -> left-def and left-ref -> right-def, triangulate, and difference with the reference."""
+    _check_rig_images(left, right, {"left deformed": left_def, "right deformed": right_def})
+    left_match = correlate_with_features(left_ref, left_def, settings, shape.grid, name="left deformed")
+    right_match = correlate_with_features(left_ref, right_def, settings, shape.grid, name="right deformed")
+    base = np.column_stack([shape.x, shape.y]).astype(np.float64)
+    tri = triangulate(left, right, R_right_from_left, T_right_from_left_mm,
+                      base + np.column_stack([left_match.u, left_match.v]),
+                      base + np.column_stack([right_match.u, right_match.v]))
+    status = np.full(shape.x.size, int(Status.CONVERGED), dtype=np.int8)
+    for match in (right_match, left_match, shape.right_match):
+        failed = match.status != Status.CONVERGED
+        status[failed] = match.status[failed]
+    status[(status == Status.CONVERGED) & ~(tri.valid & shape.valid)] = int(Status.DIVERGED)
+    ok = status == Status.CONVERGED
+    X = np.where(ok[:, None], tri.X_left_mm, np.nan)
+    U = X - shape.X_mm
+    zncc = np.fmin(np.fmin(shape.right_match.zncc, left_match.zncc), right_match.zncc)
+    return StereoState(X, U, np.linalg.norm(U, axis=1), np.where(ok, tri.reprojection_error_px, np.nan),
+                       np.where(ok, zncc, np.nan), status, left_match, right_match)
