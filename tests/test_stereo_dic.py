@@ -97,3 +97,33 @@ def test_image_size_must_match_the_calibration(renders):
     with pytest.raises(ValueError, match="calibration is for"):
         reference_shape(RIG.left, RIG.right, RIG.R_right_from_left, RIG.T_right_from_left_mm,
                         images["left_ref"][:-2], images["right_ref"][:-2], SETTINGS)
+
+
+def test_workbench_stereo_cli(renders, tmp_path, capsys):
+    import csv
+
+    import cv2
+
+    from measurement.calibration.io import CalibratedRig, export_opencv_yaml
+    from workbench.cli import main
+
+    images, _, _ = renders
+    for name, image in images.items():
+        cv2.imwrite(str(tmp_path / f"{name}.png"), np.clip(np.rint(image), 0, 255).astype(np.uint8))
+    export_opencv_yaml(CalibratedRig("rmm", RIG.left, RIG.right, RIG.R_right_from_left, RIG.T_right_from_left_mm),
+                       tmp_path / "rig.yaml")
+    x0, y0, x1, y1 = _roi()
+    args = ["stereo", "--calib", str(tmp_path / "rig.yaml"), "--left-ref", str(tmp_path / "left_ref.png"),
+            "--right-ref", str(tmp_path / "right_ref.png"), "--left", str(tmp_path / "left_def.png"),
+            "--right", str(tmp_path / "right_def.png"), "--roi", f"{x0},{y0},{x1},{y1}", "--subset", "33",
+            "--step", "20", "--out", str(tmp_path / "out")]
+    assert main(args) == 0
+    rows = list(csv.DictReader((tmp_path / "out" / "state_000.csv").open()))
+    assert rows and set(rows[0]) >= {"x", "y", "X", "Y", "Z", "U", "V", "W", "zncc", "residual", "status"}
+    V = np.array([float(r["V"]) for r in rows if r["status_name"] == "converged"])
+    assert V.size > 0.9 * len(rows) and abs(V.mean() + 1.0) < 0.01
+    vtk = (tmp_path / "out" / "state_000.vtk").read_text()
+    assert vtk.startswith("# vtk DataFile") and "VECTORS displacement_mm" in vtk
+    # missing calibration file: one clear line, exit code 2
+    assert main(args[:2] + [str(tmp_path / "none.json")] + args[3:]) == 2
+    assert "calibration file not found" in capsys.readouterr().err

@@ -7,6 +7,8 @@
     workbench calibrate --left GLOB --right GLOB --square-mm 5 --pattern 11x8 [--model rmm]
                         [--tilt-guess-deg A,B] --out calib.json
     workbench reproduce dic-accuracy --out DIR
+    workbench stereo --calib calib.json --left-ref L0 --right-ref R0 --left GLOB --right GLOB [--roi ...]
+                     [--subset 65] [--step 5] --out DIR
     workbench dic REF DEF [--roi X0,Y0,X1,Y1] [--subset 33] [--step 8] [--order 1|2]
                   [--interp biquintic|bicubic] [--seed-point X,Y] --out points.csv
 """
@@ -92,6 +94,19 @@ def _parser() -> argparse.ArgumentParser:
     cal.add_argument("--refine-corners", action="store_true", help="saddle-fit refinement of OpenCV's corners")
     cal.add_argument("--out", type=Path, required=True, help="calibration JSON (a .yaml OpenCV export is written beside)")
 
+    st = sub.add_parser("stereo", help="stereo-DIC of an image sequence with a calibration file (real or rendered)")
+    st.add_argument("--calib", type=Path, required=True, help="calibration JSON (workbench calibrate) or OpenCV YAML")
+    st.add_argument("--left-ref", type=Path, required=True, help="left reference image")
+    st.add_argument("--right-ref", type=Path, required=True, help="right reference image")
+    st.add_argument("--left", required=True, help="glob of left deformed images (sorted; paired with --right)")
+    st.add_argument("--right", required=True, help="glob of right deformed images")
+    st.add_argument("--roi", type=_roi, default=None, help="rectangle of points on the left reference X0,Y0,X1,Y1")
+    st.add_argument("--subset", type=_positive_int, default=65, help="subset size (odd, px), default 65")
+    st.add_argument("--step", type=_positive_int, default=5, help="grid step (px), default 5")
+    st.add_argument("--order", type=int, choices=(1, 2), default=2)
+    st.add_argument("--min-zncc", type=float, default=0.8)
+    st.add_argument("--out", type=Path, required=True, help="output folder (CSV + VTK per state)")
+
     dic = sub.add_parser("dic", help="2-D subset DIC between a reference and a deformed image (any 8/16-bit grey files)")
     dic.add_argument("reference", type=Path, help="reference image file")
     dic.add_argument("deformed", type=Path, help="deformed image file")
@@ -131,6 +146,54 @@ def _reproduce_dic_accuracy(args) -> int:
     for curve in metrics["bias"]:
         print(f"bias {curve['label']}: max {curve['max_abs_px']:.5f} px")
     print(f"noise ratio std(u)/theory: {metrics['noise']['all']['ratio']:.3f}; wrote {args.out / 'report.md'}")
+    return 0
+
+
+def _stereo(args) -> int:
+    import glob
+    import warnings
+
+    from measurement.calibration.io import load_calibration, load_opencv_yaml
+    from measurement.dic import DICSettings
+    from measurement.image_io import read_grey
+    from measurement.stereo_dic import StereoMatchError, measure_state, reference_shape
+    from measurement.stereo_io import write_state_csv, write_state_vtk
+
+    if not args.calib.is_file():
+        raise ValueError(f"calibration file not found: {args.calib}")
+    rig = load_opencv_yaml(args.calib) if args.calib.suffix.lower() in (".yaml", ".yml") else load_calibration(args.calib)
+    left_files, right_files = sorted(glob.glob(args.left)), sorted(glob.glob(args.right))
+    if not left_files or not right_files:
+        raise ValueError(f"no images match --left {args.left!r}" if not left_files
+                         else f"no images match --right {args.right!r}")
+    if len(left_files) != len(right_files):
+        raise ValueError(f"{len(left_files)} left images but {len(right_files)} right images: they must pair up")
+    settings = DICSettings(subset_size=args.subset, step=args.step, order=args.order, min_zncc=args.min_zncc)
+    left_ref, right_ref = read_grey(args.left_ref), read_grey(args.right_ref)
+    shape = reference_shape(rig.left, rig.right, rig.R_right_from_left, rig.T_right_from_left_mm, left_ref, right_ref,
+                            settings, roi=args.roi)
+    args.out.mkdir(parents=True, exist_ok=True)
+    write_state_csv(args.out / "reference.csv", shape)
+    write_state_vtk(args.out / "reference.vtk", shape)
+    print(f"reference: {int(shape.valid.sum())}/{shape.x.size} points triangulated, median residual "
+          f"{np.nanmedian(shape.residual_px):.4f} px")
+    from tqdm import tqdm
+    for k, (fl, fr) in enumerate(tqdm(list(zip(left_files, right_files)), desc="stereo states")):
+        try:
+            state = measure_state(rig.left, rig.right, rig.R_right_from_left, rig.T_right_from_left_mm, shape,
+                                  left_ref, read_grey(fl), read_grey(fr), settings)
+        except StereoMatchError as err:
+            warnings.warn(f"state {k} ({fl}, {fr}) skipped: {err}", stacklevel=1)
+            continue
+        name = f"state_{k:03d}"
+        write_state_csv(args.out / f"{name}.csv", shape, state)
+        write_state_vtk(args.out / f"{name}.vtk", shape, state)
+        ok = state.valid
+        if ok.mean() < 0.5:
+            warnings.warn(f"state {k} ({fl}, {fr}): only {ok.mean():.0%} of the points were measured", stacklevel=1)
+        tqdm.write(f"state {k} ({Path(fl).name}, {Path(fr).name}): {int(ok.sum())}/{ok.size} points, mean D "
+                   f"{np.nanmean(state.D_mm) if ok.any() else float('nan'):.4f} mm")
+    print(f"wrote {args.out}")
     return 0
 
 
@@ -306,6 +369,7 @@ def main(argv: list[str] | None = None) -> int:
                 ("reproduce", "calibration"): _reproduce_calibration,
                 ("calibrate", None): _calibrate,
                 ("dic", None): _dic,
+                ("stereo", None): _stereo,
                 ("reproduce", "dic-accuracy"): _reproduce_dic_accuracy}
     try:
         return handlers[(args.command, getattr(args, "what", None))](args)

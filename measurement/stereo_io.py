@@ -1,0 +1,67 @@
+"""Writing stereo-DIC results: one CSV and one legacy-VTK point cloud (for ParaView) per state."""
+from __future__ import annotations
+
+import csv
+from pathlib import Path
+
+import numpy as np
+
+from measurement.dic import Status
+from measurement.stereo_dic import StereoShape, StereoState
+
+CSV_COLUMNS = ("x", "y", "X", "Y", "Z", "U", "V", "W", "D", "zncc", "residual", "status", "status_name")
+
+
+def _fmt(value: float) -> str:
+    return "nan" if not np.isfinite(value) else f"{value:.9g}"
+
+
+def write_state_csv(path: str | Path, shape: StereoShape, state: StereoState | None = None) -> Path:
+    """Per-point CSV: left reference pixel (x, y), position X, Y, Z and displacement U, V, W, D (left camera
+    frame, mm), ZNCC, triangulation residual (px) and status. ``state=None`` writes the reference shape."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    if state is None:
+        X = shape.X_mm
+        U = np.zeros_like(X)
+        U[~shape.valid] = np.nan
+        zncc, residual = shape.right_match.zncc, shape.residual_px
+        status = np.where(shape.valid, int(Status.CONVERGED),
+                          np.where(shape.right_match.status != Status.CONVERGED, shape.right_match.status,
+                                   int(Status.DIVERGED)))
+    else:
+        X, U, zncc, residual, status = state.X_mm, state.U_mm, state.zncc, state.residual_px, state.status
+    D = np.linalg.norm(U, axis=1)
+    with path.open("w", newline="") as handle:
+        writer = csv.writer(handle)
+        writer.writerow(CSV_COLUMNS)
+        for k in range(shape.x.size):
+            writer.writerow([int(shape.x[k]), int(shape.y[k]), *(_fmt(v) for v in X[k]), *(_fmt(v) for v in U[k]),
+                             _fmt(D[k]), _fmt(zncc[k]), _fmt(residual[k]), int(status[k]),
+                             Status(int(status[k])).name.lower()])
+    return path
+
+
+def write_state_vtk(path: str | Path, shape: StereoShape, state: StereoState | None = None) -> Path:
+    """Legacy-VTK POLYDATA of the valid points with displacement (vector), D, ZNCC and residual (scalars)."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    if state is None:
+        valid = shape.valid
+        X, U = shape.X_mm[valid], np.zeros((int(valid.sum()), 3))
+        zncc, residual = shape.right_match.zncc[valid], shape.residual_px[valid]
+    else:
+        valid = state.valid
+        X, U, zncc, residual = state.X_mm[valid], state.U_mm[valid], state.zncc[valid], state.residual_px[valid]
+    n = X.shape[0]
+    lines = ["# vtk DataFile Version 3.0", "stereo-DIC points (left camera frame, mm)", "ASCII", "DATASET POLYDATA",
+             f"POINTS {n} double"]
+    lines += [f"{a:.9g} {b:.9g} {c:.9g}" for a, b, c in X]
+    lines += [f"VERTICES {n} {2 * n}"] + [f"1 {k}" for k in range(n)]
+    lines += [f"POINT_DATA {n}", "VECTORS displacement_mm double"]
+    lines += [f"{a:.9g} {b:.9g} {c:.9g}" for a, b, c in U]
+    for name, values in (("D_mm", np.linalg.norm(U, axis=1)), ("zncc", zncc), ("residual_px", residual),
+                         ("x_px", shape.x[valid]), ("y_px", shape.y[valid])):
+        lines += [f"SCALARS {name} double 1", "LOOKUP_TABLE default"] + [f"{v:.9g}" for v in values]
+    path.write_text("\n".join(lines) + "\n")
+    return path
