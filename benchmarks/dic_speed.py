@@ -113,6 +113,8 @@ def main() -> None:
         settings = DICSettings(subset_size=subset, step=8, order=order, interpolation="biquintic")
         # warm-up (numba compilation / cache load) on a small crop
         correlate(reference[:400, :400], deformed[:400, :400], settings)
+        correlate(reference[:400, :400], deformed[:400, :400], settings,
+                  initial_parameters=lambda x, y: tuple(np.round(c) for c in field(x, y)))
         for threads in (int(t) for t in args.threads.split(",")):
             numba.set_num_threads(min(threads, numba.config.NUMBA_NUM_THREADS))
             t = time.perf_counter()

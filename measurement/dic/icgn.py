@@ -298,18 +298,17 @@ def _run_end(ix_minus_c, iy, start, n):
     return end
 
 
-# The row kernel splits a warped subset row into runs of pixels whose 6 x 6 (or 4 x 4) coefficient windows
+# The row kernels split a warped subset row into runs of pixels whose 6 x 6 (or 4 x 4) coefficient windows
 # move by exactly one column per pixel: within a run the coefficient loads are unit-stride, so LLVM vectorises
 # the loop (AVX2: 4 pixels at a time) without gathers. A run ends where the x or y cell changes other than by
 # the step, i.e. about 1 + |ux| 2M + |vx| 2M times per row: long runs for small rotations and strains. Unsigned
 # indices keep numba from emitting negative-index wrap-around code that would block the vectoriser.
 
+# Two kernels, one per spline degree, on purpose: a single kernel with the degree as a (loop-invariant) branch
+# measured 5-10 % slower in benchmarks/dic_speed.py.
 @numba.njit(cache=True, fastmath=True)
-def _row_sums(cf, cols, degree, ax, bx, cx, ay, by, cy, half, f, fx, fy, k0, xw, yw, ix_minus_c, iy):
-    """Sums over one subset row of the deformed image sampled on the warped row (support inside).
-
-    ``degree`` (5 or 3) is loop-invariant: LLVM unswitches it into two vectorised loops.
-    """
+def _row_sums_quintic(cf, cols, ax, bx, cx, ay, by, cy, half, f, fx, fy, k0, xw, yw, ix_minus_c, iy):
+    """Sums over one subset row of the deformed image sampled on the warped row (support inside)."""
     n = 2 * half + 1
     _warp_row(ax, bx, cx, ay, by, cy, half, xw, yw, ix_minus_c, iy)
     sum_g = 0.0
@@ -323,7 +322,7 @@ def _row_sums(cf, cols, degree, ax, bx, cx, ay, by, cy, half, f, fx, fy, k0, xw,
     ry2 = 0.0
     stride = np.uint64(cols)
     one, two, three, four, five = np.uint64(1), np.uint64(2), np.uint64(3), np.uint64(4), np.uint64(5)
-    lo = 2 if degree == 5 else 1
+    lo = 2
     start = 0
     while start < n:
         end = _run_end(ix_minus_c, iy, start, n)
@@ -334,36 +333,78 @@ def _row_sums(cf, cols, degree, ax, bx, cx, ay, by, cy, half, f, fx, fy, k0, xw,
             tx = xw[cu] - (offset + np.int64(cu))
             ty = yw[cu] - row
             b = base + cu
-            if degree == 5:
-                x0, x1, x2, x3, x4, x5 = quintic_weights(tx)
-                y0, y1, y2, y3, y4, y5 = quintic_weights(ty)
-                g = y0 * (cf[b] * x0 + cf[b + one] * x1 + cf[b + two] * x2 + cf[b + three] * x3
-                          + cf[b + four] * x4 + cf[b + five] * x5)
-                b += stride
-                g += y1 * (cf[b] * x0 + cf[b + one] * x1 + cf[b + two] * x2 + cf[b + three] * x3
-                           + cf[b + four] * x4 + cf[b + five] * x5)
-                b += stride
-                g += y2 * (cf[b] * x0 + cf[b + one] * x1 + cf[b + two] * x2 + cf[b + three] * x3
-                           + cf[b + four] * x4 + cf[b + five] * x5)
-                b += stride
-                g += y3 * (cf[b] * x0 + cf[b + one] * x1 + cf[b + two] * x2 + cf[b + three] * x3
-                           + cf[b + four] * x4 + cf[b + five] * x5)
-                b += stride
-                g += y4 * (cf[b] * x0 + cf[b + one] * x1 + cf[b + two] * x2 + cf[b + three] * x3
-                           + cf[b + four] * x4 + cf[b + five] * x5)
-                b += stride
-                g += y5 * (cf[b] * x0 + cf[b + one] * x1 + cf[b + two] * x2 + cf[b + three] * x3
-                           + cf[b + four] * x4 + cf[b + five] * x5)
-            else:
-                x0, x1, x2, x3 = cubic_weights(tx)
-                y0, y1, y2, y3 = cubic_weights(ty)
-                g = y0 * (cf[b] * x0 + cf[b + one] * x1 + cf[b + two] * x2 + cf[b + three] * x3)
-                b += stride
-                g += y1 * (cf[b] * x0 + cf[b + one] * x1 + cf[b + two] * x2 + cf[b + three] * x3)
-                b += stride
-                g += y2 * (cf[b] * x0 + cf[b + one] * x1 + cf[b + two] * x2 + cf[b + three] * x3)
-                b += stride
-                g += y3 * (cf[b] * x0 + cf[b + one] * x1 + cf[b + two] * x2 + cf[b + three] * x3)
+            x0, x1, x2, x3, x4, x5 = quintic_weights(tx)
+            y0, y1, y2, y3, y4, y5 = quintic_weights(ty)
+            g = y0 * (cf[b] * x0 + cf[b + one] * x1 + cf[b + two] * x2 + cf[b + three] * x3
+                      + cf[b + four] * x4 + cf[b + five] * x5)
+            b += stride
+            g += y1 * (cf[b] * x0 + cf[b + one] * x1 + cf[b + two] * x2 + cf[b + three] * x3
+                       + cf[b + four] * x4 + cf[b + five] * x5)
+            b += stride
+            g += y2 * (cf[b] * x0 + cf[b + one] * x1 + cf[b + two] * x2 + cf[b + three] * x3
+                       + cf[b + four] * x4 + cf[b + five] * x5)
+            b += stride
+            g += y3 * (cf[b] * x0 + cf[b + one] * x1 + cf[b + two] * x2 + cf[b + three] * x3
+                       + cf[b + four] * x4 + cf[b + five] * x5)
+            b += stride
+            g += y4 * (cf[b] * x0 + cf[b + one] * x1 + cf[b + two] * x2 + cf[b + three] * x3
+                       + cf[b + four] * x4 + cf[b + five] * x5)
+            b += stride
+            g += y5 * (cf[b] * x0 + cf[b + one] * x1 + cf[b + two] * x2 + cf[b + three] * x3
+                       + cf[b + four] * x4 + cf[b + five] * x5)
+            k = np.uint64(k0) + cu
+            dx = float(np.int64(cu) - half)
+            sum_g += g
+            sum_gg += g * g
+            sum_fg += f[k] * g
+            gxg = fx[k] * g
+            gyg = fy[k] * g
+            rx0 += gxg
+            rx1 += gxg * dx
+            rx2 += gxg * dx * dx
+            ry0 += gyg
+            ry1 += gyg * dx
+            ry2 += gyg * dx * dx
+        start = end
+    return sum_g, sum_gg, sum_fg, rx0, rx1, rx2, ry0, ry1, ry2
+
+
+@numba.njit(cache=True, fastmath=True)
+def _row_sums_cubic(cf, cols, ax, bx, cx, ay, by, cy, half, f, fx, fy, k0, xw, yw, ix_minus_c, iy):
+    """As :func:`_row_sums_quintic`, bicubic."""
+    n = 2 * half + 1
+    _warp_row(ax, bx, cx, ay, by, cy, half, xw, yw, ix_minus_c, iy)
+    sum_g = 0.0
+    sum_gg = 0.0
+    sum_fg = 0.0
+    rx0 = 0.0
+    rx1 = 0.0
+    rx2 = 0.0
+    ry0 = 0.0
+    ry1 = 0.0
+    ry2 = 0.0
+    stride = np.uint64(cols)
+    one, two, three = np.uint64(1), np.uint64(2), np.uint64(3)
+    lo = 1
+    start = 0
+    while start < n:
+        end = _run_end(ix_minus_c, iy, start, n)
+        offset = ix_minus_c[start]
+        row = iy[start]
+        base = np.uint64((row - lo) * cols + offset - lo)
+        for cu in range(np.uint64(start), np.uint64(end)):
+            tx = xw[cu] - (offset + np.int64(cu))
+            ty = yw[cu] - row
+            b = base + cu
+            x0, x1, x2, x3 = cubic_weights(tx)
+            y0, y1, y2, y3 = cubic_weights(ty)
+            g = y0 * (cf[b] * x0 + cf[b + one] * x1 + cf[b + two] * x2 + cf[b + three] * x3)
+            b += stride
+            g += y1 * (cf[b] * x0 + cf[b + one] * x1 + cf[b + two] * x2 + cf[b + three] * x3)
+            b += stride
+            g += y2 * (cf[b] * x0 + cf[b + one] * x1 + cf[b + two] * x2 + cf[b + three] * x3)
+            b += stride
+            g += y3 * (cf[b] * x0 + cf[b + one] * x1 + cf[b + two] * x2 + cf[b + three] * x3)
             k = np.uint64(k0) + cu
             dx = float(np.int64(cu) - half)
             sum_g += g
@@ -462,8 +503,12 @@ def iterate(coef, degree, bad, check_bad, x0, y0, half, order, f, fx, fy, delta_
                 return OUT_OF_IMAGE, zncc, iteration
             if check_bad and _row_touches_bad(bad, ax, bx, cx, ay, by, cy, half):
                 return INVALID_IMAGE, zncc, iteration
-            sg, sgg, sfg, rx0, rx1, rx2, ry0, ry1, ry2 = _row_sums(
-                cf, cols, degree, ax, bx, cx, ay, by, cy, half, f, fx, fy, r * n, xw, yw, ix_minus_c, iy)
+            if degree == 5:
+                sg, sgg, sfg, rx0, rx1, rx2, ry0, ry1, ry2 = _row_sums_quintic(
+                    cf, cols, ax, bx, cx, ay, by, cy, half, f, fx, fy, r * n, xw, yw, ix_minus_c, iy)
+            else:
+                sg, sgg, sfg, rx0, rx1, rx2, ry0, ry1, ry2 = _row_sums_cubic(
+                    cf, cols, ax, bx, cx, ay, by, cy, half, f, fx, fy, r * n, xw, yw, ix_minus_c, iy)
             sum_g += sg
             sum_gg += sgg
             sum_fg += sfg
