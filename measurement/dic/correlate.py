@@ -231,7 +231,8 @@ def prepare_image(image: np.ndarray, interpolation: str, gradients: bool, name: 
 
 
 def _default_min_std(values: np.ndarray) -> float:
-    low, high = np.nanpercentile(values, [0.5, 99.5])
+    # a strided subsample estimates the grey range just as well, at 1/16 of the cost
+    low, high = np.nanpercentile(values[::4, ::4], [0.5, 99.5])
     return max(0.005 * float(high - low), 1e-12)
 
 
