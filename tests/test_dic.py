@@ -316,3 +316,16 @@ def test_csv_output(pair, tmp_path):
     assert len(lines) == result.x.size + 1
     row = lines[1 + int(np.argmax(result.converged))].split(",")
     assert float(row[2]) == pytest.approx(result.u[result.converged][0], abs=1e-8)
+
+
+def test_no_acceptable_seed_is_flagged_and_warned(pair):
+    reference, _ = pair
+    with pytest.warns(UserWarning, match="seed"):
+        result = correlate(reference, np.full_like(reference, 100.0), DICSettings(subset_size=21, step=10))
+    inside = result.status != Status.OUT_OF_IMAGE
+    assert (result.status[inside] == Status.NO_INITIAL_GUESS).all()
+    assert np.isnan(result.u).all()
+    # a flat reference says low texture instead
+    with pytest.warns(UserWarning, match="no seed found"):
+        result = correlate(np.full_like(reference, 100.0), reference, DICSettings(subset_size=21, step=10))
+    assert (result.status[result.status != Status.OUT_OF_IMAGE] == Status.LOW_TEXTURE).all()

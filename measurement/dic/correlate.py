@@ -373,6 +373,7 @@ def correlate(reference: np.ndarray, deformed: np.ndarray, settings: DICSettings
         if not found:
             warnings.warn("DIC: no seed found (every candidate subset is out of the image or untextured)",
                           stacklevel=2)
+            status[grid.active] = int(Status.NO_INITIAL_GUESS)
         t = time.perf_counter()
         if found:
             seed_rc = np.array([(r, c) for r, c, _ in found], dtype=np.int64)
@@ -392,14 +393,20 @@ def correlate(reference: np.ndarray, deformed: np.ndarray, settings: DICSettings
                           min_std, int(settings.max_iterations), float(settings.tolerance_px),
                           float(settings.min_zncc), params, status, zncc, iterations, sssig, True)
         timings["propagation"] = time.perf_counter() - t
+        if found and not (status == CONVERGED).any():
+            # Every seed failed in IC-GN: their guesses were not acceptable matches.
+            warnings.warn(f"DIC: none of the {len(found)} seed(s) converged (images unrelated, displacement beyond "
+                          f"the search radius of {settings.search_radius_px} px, or no texture in the deformed image)",
+                          stacklevel=2)
+            status[grid.active & (status == NOT_REACHED)] = int(Status.NO_INITIAL_GUESS)
         # Unreached nodes whose reference subset is unusable anyway (outside, flat, NaN) say why.
-        unreached = np.argwhere(grid.active & (status == NOT_REACHED))
+        unreached = np.argwhere(grid.active & ((status == NOT_REACHED) | (status == int(Status.NO_INITIAL_GUESS))))
         if unreached.size:
             r_u, c_u = unreached[:, 0], unreached[:, 1]
             own = reference_status(ref.values, ref.spline.grad_x, ref.spline.grad_y,
                                    grid.x[r_u, c_u].astype(np.int64), grid.y[r_u, c_u].astype(np.int64), half,
                                    settings.order, min_std)
-            status[r_u, c_u] = np.where(own == CONVERGED, NOT_REACHED, own)
+            status[r_u, c_u] = np.where(own == CONVERGED, status[r_u, c_u], own)
 
     r, c = active_rc[:, 0], active_rc[:, 1]
     out_status = status[r, c]

@@ -129,7 +129,8 @@ def zncc_search(reference: np.ndarray, deformed: np.ndarray, x: int, y: int, hal
             rotation = cv2.getRotationMatrix2D((float(reach), float(reach)), -float(angle), 1.0)
             turned = cv2.warpAffine(patch, rotation, (patch.shape[1], patch.shape[0]), flags=cv2.INTER_CUBIC)
             template = turned[reach - half:reach + half + 1, reach - half:reach + half + 1]
-        if float(template.std()) == 0.0:
+        # flat template (interpolation of a constant patch leaves only rounding noise): nothing to match
+        if float(template.std()) <= 1e-6 * (abs(float(template.mean())) + 1.0):
             continue
         score = cv2.matchTemplate(window, np.ascontiguousarray(template), cv2.TM_CCOEFF_NORMED)
         _, peak, _, (col, row) = cv2.minMaxLoc(score)
