@@ -160,8 +160,9 @@ def _reproduce_rigid_motion(args) -> int:
     print(f"{m['calibration']}: reference 3D error {e['aligned_rms']:.3f} um aligned ({e['unaligned_rms']:.1f} um "
           f"unaligned), {m['points']} points")
     for r in m["states"]:
+        paper = "" if r["paper_mean_um"] is None else f"; paper {r['paper_mean_um']:.1f} / {r['paper_std_um']:.1f} um"
         print(f"  {r['imposed_mm']:5.1f} mm: mean error {r['mean_error_um']:+.3f} um, std {r['std_um']:.3f} um "
-              f"({r['points']} points); paper {r['paper_mean_um']:.1f} / {r['paper_std_um']:.1f} um")
+              f"({r['points']} points){paper}")
     print(f"wrote {args.out / 'report.md'}")
     return 0
 
