@@ -23,6 +23,7 @@ from measurement.image_io import read_grey
 from measurement.rigid import fit_rigid
 from measurement.stereo_dic import measure_state, reference_shape
 from measurement.stereo_io import write_state_csv, write_state_vtk
+from scenes.motion import stage_states_mm
 from workbench.experiments.rigid_motion_scenes import load_truth, render_rigid_motion
 from workbench.rigs import paper_rig, paper_values
 
@@ -59,6 +60,20 @@ def _rig_for(calib: str, scale: float, out_dir: Path, seed: int) -> tuple[Calibr
     return loaded, f"calibration file {path}"
 
 
+def _reusable_truth(images: Path, *, scale, lens, seed, spp, states):
+    """The truth of renders already in ``images`` if they were made with these settings (else None)."""
+    if not (images / "truth.json").is_file():
+        return None
+    truth = load_truth(images)
+    info = truth.info
+    wanted = stage_states_mm() if states is None else np.asarray(states, dtype=float)
+    same = (info.get("rig", {}).get("scale") == scale and info.get("lens") == lens
+            and info.get("render", {}).get("seed") == seed and info.get("render", {}).get("spp") == spp
+            and truth.states_mm.shape == wanted.shape and np.allclose(truth.states_mm, wanted)
+            and all((images / name).is_file() for files in truth.files for name in files.values()))
+    return truth if same else None
+
+
 def _face_roi(truth, half: int, margin_px: int = 4) -> tuple[int, int, int, int]:
     """Rectangle of left-reference POIs whose subsets stay on the front face (projected face corners)."""
     L, H = truth.specimen.length_mm, truth.specimen.height_mm
@@ -88,16 +103,10 @@ def reproduce_rigid_motion(out_dir: str | Path, *, scale: float = 1.0, calib: st
     """Render (or reuse) the states, measure them, score against truth, write the report. Returns the metrics."""
     out_dir = Path(out_dir)
     images = out_dir / "images"
-    truth_file = images / "truth.json"
-    reuse = False
-    if truth_file.is_file():
-        previous = json.loads(truth_file.read_text())
-        render = previous.get("info", {}).get("render", {})
-        reuse = (previous.get("info", {}).get("rig", {}).get("scale") == scale and render.get("seed") == seed
-                 and render.get("spp") == spp and previous.get("info", {}).get("lens") == lens
-                 and (states is None or np.allclose(previous.get("states_mm", []), states)))
-    truth = load_truth(images) if reuse else render_rigid_motion("paper", images, scale=scale, lens=lens, spp=spp,
-                                                                 seed=seed, states=states, progress=progress)
+    truth = _reusable_truth(images, scale=scale, lens=lens, seed=seed, spp=spp, states=states)
+    if truth is None:
+        truth = render_rigid_motion("paper", images, scale=scale, lens=lens, spp=spp, seed=seed, states=states,
+                                    progress=progress)
     rig, rig_text = _rig_for(calib, scale, out_dir, seed)
     settings = DICSettings(subset_size=subset_size, step=step, order=2)
     roi = _face_roi(truth, subset_size // 2)
