@@ -21,6 +21,7 @@ import numpy as np
 
 from measurement.camera import ScheimpflugCamera
 from measurement.dic import DICResult, DICSettings, PoiGrid, Seed, Status, correlate, poi_grid
+from measurement.dic.correlate import PreparedImage, prepare_image
 from measurement.dic.guide import band_regions
 from measurement.dic.initial import translation_parameters
 from measurement.stereo import triangulate
@@ -57,38 +58,55 @@ def _as_uint8(image: np.ndarray) -> np.ndarray:
     return np.clip(scaled, 0, 255).astype(np.uint8)
 
 
-def match_features(reference: np.ndarray, target: np.ndarray, ratio: float = 0.75,
-                   max_features: int = 20000, ransac_px: float = 1.0, name: str = "target") -> FeatureMatches:
+@dataclass(frozen=True)
+class Features:
+    """SIFT key points of one image: positions (K, 2) px and descriptors (K, 128)."""
+
+    xy: np.ndarray
+    descriptors: np.ndarray | None
+
+
+def detect_features(image: np.ndarray, max_features: int = 8000) -> Features:
+    """SIFT key points and descriptors of a grey image.
+
+    Seeds need matches good to a pixel or so, and the affine fit averages many of them: above ~1.5 MP the
+    detection runs on the half-size image (4x less work) and positions are mapped back.
+    """
+    image8 = _as_uint8(image)
+    factor = 2.0 if image8.size > 1_500_000 else 1.0
+    if factor != 1.0:
+        image8 = cv2.resize(image8, None, fx=1 / factor, fy=1 / factor, interpolation=cv2.INTER_AREA)
+    keypoints, descriptors = cv2.SIFT_create(nfeatures=max_features).detectAndCompute(image8, None)
+    # INTER_AREA by 2 maps pixel centre x to (x + 0.5) / 2 - 0.5
+    xy = (np.array([k.pt for k in keypoints], dtype=np.float64).reshape(-1, 2) + 0.5) * factor - 0.5
+    return Features(xy, descriptors)
+
+
+def match_features(reference: np.ndarray | Features, target: np.ndarray, ratio: float = 0.75,
+                   ransac_px: float = 1.0, name: str = "target") -> FeatureMatches:
     """SIFT matches between two grey images, filtered by the ratio test and a RANSAC fundamental matrix.
+
+    ``reference`` may be given as its :class:`Features` (a sequence matches one reference many times).
 
     Raises
     ------
     StereoMatchError
         When fewer than 8 matches survive (no common texture, or no overlap): ``name`` says which image.
     """
-    sift = cv2.SIFT_create(nfeatures=max_features)
-    ref8, tgt8 = _as_uint8(reference), _as_uint8(target)
-    # Seeds need matches good to a pixel or so, and the affine fit averages many of them: above ~1.5 MP, detect
-    # on half-size images (4x less work); coordinates are mapped back below.
-    factor = 2.0 if ref8.size > 1_500_000 else 1.0
-    if factor != 1.0:
-        ref8 = cv2.resize(ref8, None, fx=1 / factor, fy=1 / factor, interpolation=cv2.INTER_AREA)
-        tgt8 = cv2.resize(tgt8, None, fx=1 / factor, fy=1 / factor, interpolation=cv2.INTER_AREA)
-    kp_ref, desc_ref = sift.detectAndCompute(ref8, None)
-    kp_tgt, desc_tgt = sift.detectAndCompute(tgt8, None)
-    if desc_ref is None or desc_tgt is None or len(kp_ref) < 8 or len(kp_tgt) < 8:
+    ref = reference if isinstance(reference, Features) else detect_features(reference)
+    tgt = detect_features(target)
+    if ref.descriptors is None or tgt.descriptors is None or len(ref.xy) < 8 or len(tgt.xy) < 8:
         raise StereoMatchError(f"too few features to match the reference to the {name} image "
-                               f"({0 if desc_ref is None else len(kp_ref)} and {0 if desc_tgt is None else len(kp_tgt)})")
+                               f"({len(ref.xy)} and {len(tgt.xy)})")
     matcher = cv2.FlannBasedMatcher({"algorithm": 1, "trees": 5}, {"checks": 64})
-    pairs = matcher.knnMatch(desc_ref, desc_tgt, k=2)
+    pairs = matcher.knnMatch(ref.descriptors, tgt.descriptors, k=2)
     good = [m for m, *rest in pairs if rest and m.distance < ratio * rest[0].distance]
     if len(good) < 8:
         raise StereoMatchError(f"only {len(good)} feature matches between the reference and the {name} image: "
                                "do the images overlap?")
-    # INTER_AREA by 2 maps pixel centre x to (x + 0.5) / 2 - 0.5
-    ref_xy = (np.array([kp_ref[m.queryIdx].pt for m in good], dtype=np.float64) + 0.5) * factor - 0.5
-    tgt_xy = (np.array([kp_tgt[m.trainIdx].pt for m in good], dtype=np.float64) + 0.5) * factor - 0.5
-    _, inliers = cv2.findFundamentalMat(ref_xy, tgt_xy, cv2.FM_RANSAC, ransac_px * factor, 0.999)
+    ref_xy = ref.xy[[m.queryIdx for m in good]]
+    tgt_xy = tgt.xy[[m.trainIdx for m in good]]
+    _, inliers = cv2.findFundamentalMat(ref_xy, tgt_xy, cv2.FM_RANSAC, ransac_px, 0.999)
     if inliers is None or int(inliers.sum()) < 8:
         raise StereoMatchError(f"feature matches to the {name} image are inconsistent (no epipolar geometry found)")
     keep = inliers.ravel().astype(bool)
@@ -142,10 +160,16 @@ def feature_seeds(matches: FeatureMatches, grid: PoiGrid, regions: int, per_regi
     return seeds
 
 
-def correlate_with_features(reference: np.ndarray, target: np.ndarray, settings: DICSettings, grid: PoiGrid,
-                            name: str = "target") -> DICResult:
-    """DIC of ``reference`` -> ``target`` over ``grid``, seeded by feature matches (any disparity/rotation)."""
-    matches = match_features(reference, target, name=name)
+def correlate_with_features(reference: np.ndarray | PreparedImage, target: np.ndarray, settings: DICSettings,
+                            grid: PoiGrid, name: str = "target",
+                            reference_features: Features | None = None) -> DICResult:
+    """DIC of ``reference`` -> ``target`` over ``grid``, seeded by feature matches (any disparity/rotation).
+
+    ``reference`` may be prepared once (:func:`measurement.dic.correlate.prepare_image`) and its features detected
+    once (:func:`detect_features`) for a whole sequence.
+    """
+    values = reference.values if isinstance(reference, PreparedImage) else reference
+    matches = match_features(reference_features if reference_features is not None else values, target, name=name)
     seeds = feature_seeds(matches, grid, settings.regions)
     if not seeds:
         raise StereoMatchError(f"no seed could be placed for the {name} image: too few feature matches inside "
@@ -179,6 +203,8 @@ class StereoShape:
     residual_px: np.ndarray
     valid: np.ndarray
     grid: PoiGrid = field(repr=False)
+    reference: PreparedImage | None = field(default=None, repr=False)    # left reference, prepared once
+    reference_features: Features | None = field(default=None, repr=False)
 
 
 @dataclass
@@ -233,12 +259,15 @@ def reference_shape(left: ScheimpflugCamera, right: ScheimpflugCamera, R_right_f
     """Match left-ref -> right-ref (feature seeds) and triangulate the reference shape."""
     _check_rig_images(left, right, {"left reference": left_ref, "right reference": right_ref})
     grid = poi_grid(np.asarray(left_ref).shape, settings.subset_size, settings.step, roi=roi, mask=mask)
-    match = correlate_with_features(left_ref, right_ref, settings, grid, name="right reference")
+    prepared = prepare_image(left_ref, settings.interpolation, True, "left reference", settings.lowpass_sigma_px)
+    features = detect_features(left_ref)
+    match = correlate_with_features(prepared, right_ref, settings, grid, name="right reference",
+                                    reference_features=features)
     pixels_left = np.column_stack([match.x, match.y]).astype(np.float64)
     pixels_right = pixels_left + np.column_stack([match.u, match.v])
     tri = triangulate(left, right, R_right_from_left, T_right_from_left_mm, pixels_left, pixels_right)
     return StereoShape(match.x, match.y, match, tri.X_left_mm, tri.reprojection_error_px, tri.valid & match.converged,
-                       grid)
+                       grid, prepared, features)
 
 
 def measure_state(left: ScheimpflugCamera, right: ScheimpflugCamera, R_right_from_left, T_right_from_left_mm,
@@ -246,8 +275,11 @@ def measure_state(left: ScheimpflugCamera, right: ScheimpflugCamera, R_right_fro
                   settings: DICSettings = STEREO_DIC_SETTINGS) -> StereoState:
     """Match left-ref -> left-def and left-ref -> right-def, triangulate, and difference with the reference."""
     _check_rig_images(left, right, {"left deformed": left_def, "right deformed": right_def})
-    left_match = correlate_with_features(left_ref, left_def, settings, shape.grid, name="left deformed")
-    right_match = correlate_with_features(left_ref, right_def, settings, shape.grid, name="right deformed")
+    reference = shape.reference if shape.reference is not None else left_ref
+    left_match = correlate_with_features(reference, left_def, settings, shape.grid, name="left deformed",
+                                         reference_features=shape.reference_features)
+    right_match = correlate_with_features(reference, right_def, settings, shape.grid, name="right deformed",
+                                          reference_features=shape.reference_features)
     base = np.column_stack([shape.x, shape.y]).astype(np.float64)
     tri = triangulate(left, right, R_right_from_left, T_right_from_left_mm,
                       base + np.column_stack([left_match.u, left_match.v]),

@@ -188,6 +188,7 @@ class PreparedImage:
     values: np.ndarray          # float64, NaN where invalid (dilated)
     spline: bspline.BSplineImage
     invalid: np.ndarray | None  # bool (rows, cols), dilated by the interpolation support; None if all valid
+    lowpass_sigma_px: float = 0.0
 
 
 def prepare_image(image: np.ndarray, interpolation: str, gradients: bool, name: str,
@@ -227,7 +228,7 @@ def prepare_image(image: np.ndarray, interpolation: str, gradients: bool, name: 
         values[invalid] = np.nan
     else:
         spline = bspline.prefilter(values, degree, gradients=gradients)
-    return PreparedImage(values, spline, invalid)
+    return PreparedImage(values, spline, invalid, float(lowpass_sigma_px))
 
 
 def _default_min_std(values: np.ndarray) -> float:
@@ -284,7 +285,8 @@ def correlate(reference: np.ndarray, deformed: np.ndarray, settings: DICSettings
     ----------
     reference, deformed : ndarray, shape (rows, cols)
         Grey images of the same shape (any real dtype; NaN pixels are allowed and flag the subsets touching
-        them).
+        them). ``reference`` may also be a :class:`PreparedImage` (``prepare_image(..., gradients=True)``) to
+        correlate one reference to many images without preparing it again.
     settings : DICSettings, optional
     roi : (x0, y0, x1, y1), optional
         Rectangle of POI centres, px.
@@ -311,11 +313,21 @@ def correlate(reference: np.ndarray, deformed: np.ndarray, settings: DICSettings
     settings = settings or DICSettings()
     timings = {}
     start = time.perf_counter()
-    reference = np.asarray(reference)
+    if isinstance(reference, PreparedImage):
+        # A sequence correlates one reference to many images: its spline and gradients are made once.
+        ref = reference
+        if ref.spline.degree != bspline.degree_of(settings.interpolation) or ref.spline.grad_x is None or \
+                ref.lowpass_sigma_px != settings.lowpass_sigma_px:
+            raise ValueError("the prepared reference does not match the settings (interpolation, gradients, low-pass)")
+        reference = ref.values
+    else:
+        reference = np.asarray(reference)
+        ref = None
     deformed = np.asarray(deformed)
     if reference.ndim == 2 and deformed.ndim == 2 and reference.shape != deformed.shape:
         raise ValueError(f"reference image {reference.shape} and deformed image {deformed.shape} differ in size")
-    ref = prepare_image(reference, settings.interpolation, True, "reference", settings.lowpass_sigma_px)
+    if ref is None:
+        ref = prepare_image(reference, settings.interpolation, True, "reference", settings.lowpass_sigma_px)
     dfm = prepare_image(deformed, settings.interpolation, False, "deformed", settings.lowpass_sigma_px)
     timings["prefilter"] = time.perf_counter() - start
 
