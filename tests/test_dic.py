@@ -329,3 +329,17 @@ def test_no_acceptable_seed_is_flagged_and_warned(pair):
     with pytest.warns(UserWarning, match="no seed found"):
         result = correlate(np.full_like(reference, 100.0), reference, DICSettings(subset_size=21, step=10))
     assert (result.status[result.status != Status.OUT_OF_IMAGE] == Status.LOW_TEXTURE).all()
+
+
+def test_prepared_reference_gives_the_same_result(pair):
+    from measurement.dic.correlate import prepare_image
+
+    reference, deformed = pair
+    settings = DICSettings(subset_size=21, step=10)
+    plain = correlate(reference, deformed, settings)
+    prepared = prepare_image(reference, settings.interpolation, True, "reference")
+    again = correlate(prepared, deformed, settings)
+    assert np.array_equal(plain.status, again.status)
+    assert np.nanmax(np.abs(plain.parameters - again.parameters)) < 1e-12
+    with pytest.raises(ValueError, match="does not match the settings"):
+        correlate(prepared, deformed, DICSettings(subset_size=21, step=10, interpolation="bicubic"))
