@@ -12,13 +12,14 @@ import warnings
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
+import numba
 import numpy as np
 from scipy import ndimage
 
 from . import bspline
 from .grid import PoiGrid, check_subset_size, poi_grid
 from .guide import band_regions, propagate
-from .icgn import correlate_batch, reference_status
+from .icgn import correlate_batch
 from .initial import DEFAULT_SEED_ANGLES_DEG, Seed, zncc_search
 from .shape_functions import N_PARAMETERS, PARAMETER_NAMES, SECOND_ORDER
 from .status import CONVERGED, NOT_REACHED, Status
@@ -231,6 +232,41 @@ def prepare_image(image: np.ndarray, interpolation: str, gradients: bool, name: 
     return PreparedImage(values, spline, invalid, float(lowpass_sigma_px))
 
 
+def reference_subset_status(values: np.ndarray, xs: np.ndarray, ys: np.ndarray, half: int,
+                            min_std: float) -> np.ndarray:
+    """OUT_OF_IMAGE, INVALID_IMAGE, LOW_TEXTURE (grey-level std below ``min_std``) or CONVERGED (= usable) for the
+    reference subsets at (xs, ys), from integral images (cheap for many points).
+
+    The subset Hessian is not formed, so a textured subset with a singular Hessian reads usable here.
+    """
+    rows, cols = values.shape
+    xs = np.asarray(xs, dtype=np.int64)
+    ys = np.asarray(ys, dtype=np.int64)
+    status = np.full(xs.size, CONVERGED, dtype=np.int64)
+    outside = (xs - half < 0) | (ys - half < 0) | (xs + half >= cols) | (ys + half >= rows)
+    status[outside] = int(Status.OUT_OF_IMAGE)
+    inside = ~outside
+    if not inside.any():
+        return status
+    finite = np.isfinite(values)
+    filled = np.where(finite, values, 0.0)
+
+    def box_sums(image):
+        integral = np.zeros((rows + 1, cols + 1))
+        integral[1:, 1:] = image.cumsum(axis=0).cumsum(axis=1)
+        x0, y0 = xs[inside] - half, ys[inside] - half
+        x1, y1 = xs[inside] + half + 1, ys[inside] + half + 1
+        return integral[y1, x1] - integral[y0, x1] - integral[y1, x0] + integral[y0, x0]
+
+    n = float((2 * half + 1) ** 2)
+    mean = box_sums(filled) / n
+    variance = np.maximum(box_sums(filled * filled) / n - mean * mean, 0.0)
+    own = np.where(np.sqrt(variance) < min_std, int(Status.LOW_TEXTURE), CONVERGED)
+    own[box_sums((~finite).astype(np.float64)) > 0.5] = int(Status.INVALID_IMAGE)
+    status[inside] = own
+    return status
+
+
 def _default_min_std(values: np.ndarray) -> float:
     # a strided subsample estimates the grey range just as well, at 1/16 of the cost
     low, high = np.nanpercentile(values[::4, ::4], [0.5, 99.5])
@@ -392,11 +428,14 @@ def correlate(reference: np.ndarray, deformed: np.ndarray, settings: DICSettings
             seed_p = np.array([s.parameters for _, _, s in found], dtype=np.float64)
             if settings.order == 1:
                 seed_p[:, SECOND_ORDER] = 0.0
-            propagate(ref.values, ref.spline.grad_x, ref.spline.grad_y, dfm.spline.coefficients, degree, bad,
-                      check_bad, grid.x.astype(np.int64), grid.y.astype(np.int64), grid.active, region, n_regions,
-                      seed_rc, seed_p, half, settings.order, min_std, int(settings.max_iterations),
-                      float(settings.tolerance_px), float(settings.min_zncc), params, status, zncc, iterations,
-                      sssig, False)
+            # Bands can hold very different amounts of work (part of the ROI out of view): hand them out one
+            # at a time instead of in fixed chunks per thread.
+            with numba.parallel_chunksize(1):
+                propagate(ref.values, ref.spline.grad_x, ref.spline.grad_y, dfm.spline.coefficients, degree, bad,
+                          check_bad, grid.x.astype(np.int64), grid.y.astype(np.int64), grid.active, region,
+                          n_regions, seed_rc, seed_p, half, settings.order, min_std, int(settings.max_iterations),
+                          float(settings.tolerance_px), float(settings.min_zncc), params, status, zncc, iterations,
+                          sssig, False)
             unreached = grid.active & (status == NOT_REACHED)
             if n_regions > 1 and unreached.any() and (status == CONVERGED).any():
                 propagate(ref.values, ref.spline.grad_x, ref.spline.grad_y, dfm.spline.coefficients, degree,
@@ -415,9 +454,7 @@ def correlate(reference: np.ndarray, deformed: np.ndarray, settings: DICSettings
         unreached = np.argwhere(grid.active & ((status == NOT_REACHED) | (status == int(Status.NO_INITIAL_GUESS))))
         if unreached.size:
             r_u, c_u = unreached[:, 0], unreached[:, 1]
-            own = reference_status(ref.values, ref.spline.grad_x, ref.spline.grad_y,
-                                   grid.x[r_u, c_u].astype(np.int64), grid.y[r_u, c_u].astype(np.int64), half,
-                                   settings.order, min_std)
+            own = reference_subset_status(ref.values, grid.x[r_u, c_u], grid.y[r_u, c_u], half, min_std)
             status[r_u, c_u] = np.where(own == CONVERGED, status[r_u, c_u], own)
 
     r, c = active_rc[:, 0], active_rc[:, 1]

@@ -604,24 +604,6 @@ def correlate_batch(image, grad_x, grad_y, coef, degree, bad, check_bad, xs, ys,
         sssig[k, 1] = sy
 
 
-@numba.njit(cache=True, parallel=True)
-def reference_status(image, grad_x, grad_y, xs, ys, half, order, min_std):
-    """Status of the reference subsets alone (OUT_OF_IMAGE, INVALID_IMAGE, LOW_TEXTURE or CONVERGED = usable)."""
-    npar = 6 if order == 1 else 12
-    n = 2 * half + 1
-    out = np.empty(xs.shape[0], dtype=np.int64)
-    for k in numba.prange(xs.shape[0]):
-        f = np.empty(n * n)
-        fx = np.empty(n * n)
-        fy = np.empty(n * n)
-        hinv = np.empty((npar, npar))
-        a = np.empty(npar)
-        s = np.empty(npar)
-        out[k] = prepare_reference(image, grad_x, grad_y, xs[k], ys[k], half, order, min_std, f, fx, fy, hinv, a,
-                                   s)[0]
-    return out
-
-
 def compact_size(order: int) -> int:
     """Number of IC-GN parameters: 6 for a first-order, 12 for a second-order shape function."""
     return 6 if order == 1 else 12
