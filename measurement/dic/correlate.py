@@ -248,14 +248,18 @@ def reference_subset_status(values: np.ndarray, xs: np.ndarray, ys: np.ndarray, 
     inside = ~outside
     if not inside.any():
         return status
-    finite = np.isfinite(values)
-    filled = np.where(finite, values, 0.0)
+    # integral images over the bounding box of the subsets only
+    bx0, by0 = int(xs[inside].min()) - half, int(ys[inside].min()) - half
+    bx1, by1 = int(xs[inside].max()) + half + 1, int(ys[inside].max()) + half + 1
+    window = values[by0:by1, bx0:bx1]
+    finite = np.isfinite(window)
+    filled = np.where(finite, window, 0.0)
 
     def box_sums(image):
-        integral = np.zeros((rows + 1, cols + 1))
+        integral = np.zeros((image.shape[0] + 1, image.shape[1] + 1))
         integral[1:, 1:] = image.cumsum(axis=0).cumsum(axis=1)
-        x0, y0 = xs[inside] - half, ys[inside] - half
-        x1, y1 = xs[inside] + half + 1, ys[inside] + half + 1
+        x0, y0 = xs[inside] - half - bx0, ys[inside] - half - by0
+        x1, y1 = x0 + 2 * half + 1, y0 + 2 * half + 1
         return integral[y1, x1] - integral[y0, x1] - integral[y1, x0] + integral[y0, x0]
 
     n = float((2 * half + 1) ** 2)
