@@ -9,7 +9,7 @@ from __future__ import annotations
 import csv
 import time
 import warnings
-from dataclasses import asdict, dataclass, field
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numba
@@ -496,11 +496,4 @@ def _check_initial_parameters(initial, count: int) -> np.ndarray:
     return initial.copy()
 
 
-def settings_dict(settings: DICSettings) -> dict:
-    """Settings as a JSON-friendly dict."""
-    out = asdict(settings)
-    out["seed_angles_deg"] = list(settings.seed_angles_deg)
-    return out
-
-
-__all__ = ["DICSettings", "DICResult", "correlate", "find_seeds", "prepare_image", "settings_dict"]
+__all__ = ["DICSettings", "DICResult", "correlate", "find_seeds", "prepare_image"]

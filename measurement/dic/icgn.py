@@ -602,8 +602,3 @@ def correlate_batch(image, grad_x, grad_y, coef, degree, bad, check_bad, xs, ys,
         iterations[k] = it
         sssig[k, 0] = sx
         sssig[k, 1] = sy
-
-
-def compact_size(order: int) -> int:
-    """Number of IC-GN parameters: 6 for a first-order, 12 for a second-order shape function."""
-    return 6 if order == 1 else 12

@@ -19,8 +19,6 @@ import numpy as np
 
 PARAMETER_NAMES = ("u", "ux", "uy", "uxx", "uxy", "uyy", "v", "vx", "vy", "vxx", "vxy", "vyy")
 N_PARAMETERS = 12
-#: Indices of the parameters a first-order shape function uses.
-FIRST_ORDER = (0, 1, 2, 6, 7, 8)
 #: Indices of the second-order terms.
 SECOND_ORDER = [3, 4, 5, 9, 10, 11]
 
