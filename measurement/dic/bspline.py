@@ -34,7 +34,7 @@ class BSplineImage:
 
     Attributes
     ----------
-    coefficients : ndarray of float64, shape (rows, cols)
+    coefficients : ndarray of float64 or float32, shape (rows, cols)
         B-spline coefficients ``c``.
     degree : int
         3 (bicubic) or 5 (biquintic).
@@ -70,7 +70,8 @@ def support_margin(degree: int) -> tuple[int, int]:
     return (1, 2) if degree == 3 else (2, 3)
 
 
-def prefilter(image: np.ndarray, interpolation: str | int = "biquintic", gradients: bool = True) -> BSplineImage:
+def prefilter(image: np.ndarray, interpolation: str | int = "biquintic", gradients: bool = True,
+              coefficient_dtype=np.float64) -> BSplineImage:
     """B-spline coefficients (and, optionally, pixel-centre gradients) of a grey image.
 
     Parameters
@@ -82,6 +83,10 @@ def prefilter(image: np.ndarray, interpolation: str | int = "biquintic", gradien
     gradients : bool
         Also compute the exact gradient of the interpolant at every pixel centre (what IC-GN needs of the
         reference image).
+    coefficient_dtype : {np.float64, np.float32}
+        Storage of the coefficients. The prefilter and the gradients are always computed in double precision;
+        float32 halves the memory and lets IC-GN sample 8 pixels per AVX2 instruction (rounding the
+        coefficients changes interpolated values by ~1e-5 grey).
 
     Returns
     -------
@@ -100,7 +105,9 @@ def prefilter(image: np.ndarray, interpolation: str | int = "biquintic", gradien
     grad_x = grad_y = None
     if gradients:
         grad_x, grad_y = pixel_gradients(coefficients, degree)
-    return BSplineImage(coefficients, degree, grad_x, grad_y)
+    if np.dtype(coefficient_dtype) not in (np.dtype(np.float64), np.dtype(np.float32)):
+        raise ValueError(f"coefficient_dtype must be float64 or float32, got {coefficient_dtype!r}")
+    return BSplineImage(coefficients.astype(coefficient_dtype, copy=False), degree, grad_x, grad_y)
 
 
 def _integer_kernels(degree: int) -> tuple[np.ndarray, np.ndarray]:
@@ -155,6 +162,40 @@ def quintic_weights(t):
     a1 = (-1.0 / 12.0) * h * (q + 4.0)
     b0 = (1.0 / 16.0) * (9.0 / 5.0 - q)
     b1 = (1.0 / 24.0) * h * (s4 - s2 - 5.0)
+    return w0, b0 + b1, a0 + a1, a0 - a1, b0 - b1, w5
+
+
+# Single-precision twins of the weights, for IC-GN's sampling of the deformed image: 8 AVX2 lanes instead of 4.
+# Numba types a Python float literal as float64, which would promote the whole expression, hence the constants.
+_F32 = np.float32
+_C6, _C24, _C120, _C16, _Cm12 = _F32(1 / 6), _F32(1 / 24), _F32(1 / 120), _F32(1 / 16), _F32(-1 / 12)
+_F0_2, _F0_5, _F1, _F2, _F3, _F4, _F5 = _F32(0.2), _F32(0.5), _F32(1), _F32(2), _F32(3), _F32(4), _F32(5)
+_F1_8, _F9_2 = _F32(9 / 5), _F32(46 / 5)
+
+
+@numba.njit(inline="always", fastmath=True)
+def cubic_weights_f32(t):
+    """:func:`cubic_weights` in float32 (``t`` float32)."""
+    w3 = _C6 * t * t * t
+    w0 = _C6 + _F0_5 * t * (t - _F1) - w3
+    w2 = t + w0 - _F2 * w3
+    return w0, _F1 - w0 - w2 - w3, w2, w3
+
+
+@numba.njit(inline="always", fastmath=True)
+def quintic_weights_f32(t):
+    """:func:`quintic_weights` in float32 (``t`` float32)."""
+    t2 = t * t
+    w5 = _C120 * t * t2 * t2
+    s2 = t2 - t
+    s4 = s2 * s2
+    h = t - _F0_5
+    q = s2 * (s2 - _F3)
+    w0 = _C24 * (_F0_2 + s2 + s4) - w5
+    a0 = _C24 * (s2 * (s2 - _F5) + _F9_2)
+    a1 = _Cm12 * h * (q + _F4)
+    b0 = _C16 * (_F1_8 - q)
+    b1 = _C24 * h * (s4 - s2 - _F5)
     return w0, b0 + b1, a0 + a1, a0 - a1, b0 - b1, w5
 
 

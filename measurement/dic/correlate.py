@@ -217,6 +217,8 @@ def prepare_image(image: np.ndarray, interpolation: str, gradients: bool, name: 
         finite = ~ndimage.binary_dilation(~finite, iterations=int(np.ceil(4 * lowpass_sigma_px))) \
             if not finite.all() else finite
         values[~finite] = np.nan
+    # A deformed image (no gradients) is only sampled by IC-GN, which does so in single precision.
+    coefficient_dtype = np.float64 if gradients else np.float32
     invalid = None
     if not finite.all():
         if not finite.any():
@@ -225,10 +227,10 @@ def prepare_image(image: np.ndarray, interpolation: str, gradients: bool, name: 
         filled = values[rows, cols]
         # Prefilter poles decay as 0.43^k (quintic): 8 px more brings a unit jump below 1e-3 grey.
         invalid = ndimage.binary_dilation(~finite, iterations=degree + 8)
-        spline = bspline.prefilter(filled, degree, gradients=gradients)
+        spline = bspline.prefilter(filled, degree, gradients=gradients, coefficient_dtype=coefficient_dtype)
         values[invalid] = np.nan
     else:
-        spline = bspline.prefilter(values, degree, gradients=gradients)
+        spline = bspline.prefilter(values, degree, gradients=gradients, coefficient_dtype=coefficient_dtype)
     return PreparedImage(values, spline, invalid, float(lowpass_sigma_px))
 
 
