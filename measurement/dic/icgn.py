@@ -235,7 +235,7 @@ def prepare_reference(image, grad_x, grad_y, x0, y0, half, order, min_std, f, fx
         dy_powers[0] = 1.0
         for b in range(1, 5):
             dy_powers[b] = dy_powers[b - 1] * dy
-        for b in range(5):
+        for b in range(3 if order == 1 else 5):   # the first order needs moments up to degree 2 only
             w = dy_powers[b]
             if b <= 4:
                 moments[0, 0, b] += xx0 * w
@@ -431,14 +431,18 @@ def _row_sums(g, f, fx, fy, k0, dxs):
     rx1 = 0.0
     ry0 = 0.0
     ry1 = 0.0
-    for c in range(g.shape[0]):
+    n = g.shape[0]
+    # Row slices: indices from range(n) are provably >= 0, so no wrap-around code blocks the vectoriser.
+    f_row = f[k0:k0 + n]
+    fx_row = fx[k0:k0 + n]
+    fy_row = fy[k0:k0 + n]
+    for c in range(n):
         value = np.float64(g[c])
-        k = k0 + c
         sum_g += value
         sum_gg += value * value
-        sum_fg += f[k] * value
-        gxg = fx[k] * value
-        gyg = fy[k] * value
+        sum_fg += f_row[c] * value
+        gxg = fx_row[c] * value
+        gyg = fy_row[c] * value
         rx0 += gxg
         rx1 += gxg * dxs[c]
         ry0 += gyg
@@ -451,11 +455,13 @@ def _row_sums_second(g, fx, fy, k0, dxs):
     """The second-order extra sums of one row: f_x g dx^2 and f_y g dx^2."""
     rx2 = 0.0
     ry2 = 0.0
-    for c in range(g.shape[0]):
-        k = k0 + c
+    n = g.shape[0]
+    fx_row = fx[k0:k0 + n]
+    fy_row = fy[k0:k0 + n]
+    for c in range(n):
         d2 = dxs[c] * dxs[c] * g[c]
-        rx2 += fx[k] * d2
-        ry2 += fy[k] * d2
+        rx2 += fx_row[c] * d2
+        ry2 += fy_row[c] * d2
     return rx2, ry2
 
 
