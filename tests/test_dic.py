@@ -60,6 +60,38 @@ def test_spline_matches_scipy_and_its_own_derivative(degree):
     assert np.isnan(interpolate(spline, np.array([0.5]), np.array([20.0]))[0]).all()
 
 
+@pytest.mark.parametrize("degree", [3, 5])
+@pytest.mark.parametrize("shape", [(12, 17), (301, 90)])
+def test_threaded_prefilter_equals_scipy(degree, shape):
+    """The numba prefilter and pixel gradients give scipy's mirror-boundary coefficients, on 1 and 2 threads
+    (short lines use the exact boundary sum, long ones the truncated one)."""
+    rng = np.random.default_rng(4)
+    image = rng.uniform(0, 255, shape)
+    expected = ndimage.spline_filter(image, order=degree, output=np.float64, mode="mirror")
+    value = np.array([1.0, 4.0, 1.0]) / 6.0 if degree == 3 else np.array([1.0, 26.0, 66.0, 26.0, 1.0]) / 120.0
+    derivative = np.array([-0.5, 0.0, 0.5]) if degree == 3 else \
+        np.array([-1.0 / 24.0, -5.0 / 12.0, 0.0, 5.0 / 12.0, 1.0 / 24.0])
+    expected_gx = ndimage.correlate1d(ndimage.correlate1d(expected, value, axis=0, mode="mirror"), derivative,
+                                      axis=1, mode="mirror")
+    expected_gy = ndimage.correlate1d(ndimage.correlate1d(expected, value, axis=1, mode="mirror"), derivative,
+                                      axis=0, mode="mirror")
+    previous = numba.get_num_threads()
+    try:
+        for threads in sorted({1, min(2, numba.config.NUMBA_NUM_THREADS)}):
+            numba.set_num_threads(threads)
+            spline = prefilter(image, degree)
+            assert np.abs(spline.coefficients - expected).max() < 1e-9 * np.abs(expected).max()
+            assert np.abs(spline.grad_x - expected_gx).max() < 1e-9 * np.abs(expected_gx).max()
+            assert np.abs(spline.grad_y - expected_gy).max() < 1e-9 * np.abs(expected_gy).max()
+    finally:
+        numba.set_num_threads(previous)
+    single = prefilter(image, degree, gradients=False, coefficient_dtype=np.float32)
+    assert single.coefficients.dtype == np.float32 and single.grad_x is None
+    assert np.abs(single.coefficients - expected).max() < 1e-6 * np.abs(expected).max()
+    with pytest.raises(ValueError, match="coefficient_dtype"):
+        prefilter(image, degree, coefficient_dtype=np.int16)
+
+
 def test_inverse_composition_of_warps():
     rng = np.random.default_rng(1)
     dx, dy = np.meshgrid(np.arange(-5.0, 6.0), np.arange(-5.0, 6.0))

@@ -5,7 +5,8 @@ A B-spline interpolant of degree ``n`` writes the continuous image as
     f(x, y) = sum_{i, j} c[i, j] * beta_n(y - i) * beta_n(x - j),
 
 where ``c`` are the B-spline coefficients. They come from the image by the recursive prefilter of Unser
-(1991); :func:`prefilter` delegates it to ``scipy.ndimage.spline_filter`` (mirror boundary), so that the
+(1991); :func:`prefilter` runs it with mirror boundaries, multi-threaded (numba; the same coefficients as
+``scipy.ndimage.spline_filter(mode='mirror')``, which holds the GIL and runs on one core), so that the
 interpolant passes exactly through every pixel. Evaluating ``f`` at a real point needs the ``n + 1``
 coefficients around it in each direction and ``n + 1`` weights per axis: ``4 x 4`` for the bicubic, ``6 x 6``
 for the biquintic interpolant. The weights are the formulas of Thevenaz, Blu & Unser (2000), "Interpolation
@@ -22,7 +23,6 @@ from dataclasses import dataclass
 
 import numba
 import numpy as np
-from scipy import ndimage
 
 #: Degrees implemented, by name.
 DEGREES = {"bicubic": 3, "biquintic": 5}
@@ -100,8 +100,7 @@ def prefilter(image: np.ndarray, interpolation: str | int = "biquintic", gradien
         raise ValueError(f"image {image.shape} is too small for a degree-{degree} spline")
     if not np.isfinite(image).all():
         raise ValueError("image contains NaN or infinite values")
-    coefficients = ndimage.spline_filter(image.astype(np.float64, copy=False), order=degree,
-                                         output=np.float64, mode="mirror")
+    coefficients = _spline_coefficients(image, degree)
     grad_x = grad_y = None
     if gradients:
         grad_x, grad_y = pixel_gradients(coefficients, degree)
@@ -132,11 +131,149 @@ def pixel_gradients(coefficients: np.ndarray, degree: int) -> tuple[np.ndarray, 
         Grey levels per pixel along x (columns) and y (rows).
     """
     value, derivative = _integer_kernels(degree)
-    smooth_rows = ndimage.correlate1d(coefficients, value, axis=0, mode="mirror")
-    grad_x = ndimage.correlate1d(smooth_rows, derivative, axis=1, mode="mirror")
-    smooth_cols = ndimage.correlate1d(coefficients, value, axis=1, mode="mirror")
-    grad_y = ndimage.correlate1d(smooth_cols, derivative, axis=0, mode="mirror")
+    c = np.ascontiguousarray(coefficients, dtype=np.float64)
+    smooth = np.empty_like(c)
+    grad_x = np.empty_like(c)
+    grad_y = np.empty_like(c)
+    _correlate_columns(c, value, smooth)
+    _correlate_rows(smooth, derivative, grad_x)
+    _correlate_rows(c, value, smooth)
+    _correlate_columns(smooth, derivative, grad_y)
     return grad_x, grad_y
+
+
+# ---------------------------------------------------------------------------------------------------------
+# Prefilter and pixel gradients, multi-threaded (scipy's spline_filter holds the GIL and runs on one core).
+# ---------------------------------------------------------------------------------------------------------
+
+def _poles(degree: int) -> np.ndarray:
+    """Poles of the B-spline interpolation prefilter (Unser 1991; the values scipy.ndimage uses)."""
+    if degree == 3:
+        return np.array([np.sqrt(3.0) - 2.0])
+    return np.array([np.sqrt(67.5 - np.sqrt(4436.25)) + np.sqrt(26.25) - 6.5,
+                     np.sqrt(67.5 + np.sqrt(4436.25)) - np.sqrt(26.25) - 6.5])
+
+
+@numba.njit(inline="always")
+def _mirror(i, n):
+    """Index ``i`` reflected about the edge pixels (ndimage's 'mirror': d c b | a b c d | c b a)."""
+    if i < 0:
+        return -i
+    if i >= n:
+        return 2 * (n - 1) - i
+    return i
+
+
+@numba.njit(cache=True)
+def _causal_start(line_at, n, z, horizon):
+    """Mirror-boundary start of the causal recursion, c+[0] = sum_k z^|k| s[mirror(k)] (exact when n is short,
+    truncated after ``horizon`` terms, where z^k is below double precision, otherwise)."""
+    if n <= horizon:
+        z_n_1 = z ** (n - 1)
+        total = line_at[0] + z_n_1 * line_at[n - 1]
+        z_i = z
+        for i in range(1, n - 1):
+            total += z_i * (line_at[i] + z_n_1 * line_at[n - 1 - i])
+            z_i *= z
+        return total / (1.0 - z_n_1 * z_n_1)
+    total = 0.0
+    z_i = 1.0
+    for i in range(horizon):
+        total += z_i * line_at[i]
+        z_i *= z
+    return total
+
+
+@numba.njit(cache=True, parallel=True)
+def _filter_rows(c, poles, gain, horizons):
+    """In-place recursive prefilter along axis 1 (each row on its own)."""
+    rows, cols = c.shape
+    for i in numba.prange(rows):
+        line = c[i]
+        for j in range(cols):
+            line[j] *= gain
+        for p in range(poles.shape[0]):
+            z = poles[p]
+            line[0] = _causal_start(line, cols, z, horizons[p])
+            for j in range(1, cols):
+                line[j] += z * line[j - 1]
+            line[cols - 1] = (z * line[cols - 2] + line[cols - 1]) * z / (z * z - 1.0)
+            for j in range(cols - 2, -1, -1):
+                line[j] = z * (line[j + 1] - line[j])
+
+
+@numba.njit(cache=True, parallel=True)
+def _filter_columns(c, poles, gain, horizons):
+    """In-place recursive prefilter along axis 0, a block of columns at a time (unit-stride, vectorised)."""
+    rows, cols = c.shape
+    block = 64
+    for b in numba.prange((cols + block - 1) // block):
+        j0 = b * block
+        j1 = min(cols, j0 + block)
+        for i in range(rows):
+            for j in range(j0, j1):
+                c[i, j] *= gain
+        for p in range(poles.shape[0]):
+            z = poles[p]
+            for j in range(j0, j1):
+                c[0, j] = _causal_start(c[:, j], rows, z, horizons[p])
+            for i in range(1, rows):
+                for j in range(j0, j1):
+                    c[i, j] += z * c[i - 1, j]
+            for j in range(j0, j1):
+                c[rows - 1, j] = (z * c[rows - 2, j] + c[rows - 1, j]) * z / (z * z - 1.0)
+            for i in range(rows - 2, -1, -1):
+                for j in range(j0, j1):
+                    c[i, j] = z * (c[i + 1, j] - c[i, j])
+
+
+def _spline_coefficients(image: np.ndarray, degree: int) -> np.ndarray:
+    """B-spline coefficients with mirror boundaries (same as ``scipy.ndimage.spline_filter(mode='mirror')``)."""
+    poles = _poles(degree)
+    gain = float(np.prod((1.0 - poles) * (1.0 - 1.0 / poles)))
+    horizons = np.ceil(np.log(np.finfo(np.float64).eps / 4) / np.log(np.abs(poles))).astype(np.int64) + 1
+    c = np.array(image, dtype=np.float64, order="C", copy=True)
+    _filter_columns(c, poles, gain, horizons)
+    _filter_rows(c, poles, gain, horizons)
+    return c
+
+
+@numba.njit(cache=True, parallel=True)
+def _correlate_rows(c, kernel, out):
+    """out[i, j] = sum_k kernel[k] c[i, mirror(j + k - h)]."""
+    rows, cols = c.shape
+    h = kernel.shape[0] // 2
+    for i in numba.prange(rows):
+        for j in range(cols):
+            out[i, j] = 0.0
+        for k in range(kernel.shape[0]):
+            w = kernel[k]
+            if w == 0.0:
+                continue
+            d = k - h
+            for j in range(max(0, -d), min(cols, cols - d)):
+                out[i, j] += w * c[i, j + d]
+            for j in range(0, max(0, -d)):
+                out[i, j] += w * c[i, _mirror(j + d, cols)]
+            for j in range(min(cols, cols - d), cols):
+                out[i, j] += w * c[i, _mirror(j + d, cols)]
+
+
+@numba.njit(cache=True, parallel=True)
+def _correlate_columns(c, kernel, out):
+    """out[i, j] = sum_k kernel[k] c[mirror(i + k - h), j]."""
+    rows, cols = c.shape
+    h = kernel.shape[0] // 2
+    for i in numba.prange(rows):
+        for j in range(cols):
+            out[i, j] = 0.0
+        for k in range(kernel.shape[0]):
+            w = kernel[k]
+            if w == 0.0:
+                continue
+            source = c[_mirror(i + k - h, rows)]
+            for j in range(cols):
+                out[i, j] += w * source[j]
 
 
 @numba.njit(inline="always", fastmath=True)

@@ -9,6 +9,7 @@ from __future__ import annotations
 import csv
 import time
 import warnings
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -299,10 +300,14 @@ def _seed_candidates(grid: PoiGrid, region: np.ndarray, region_id: int, seed_poi
 def find_seeds(reference: np.ndarray, deformed: np.ndarray, grid: PoiGrid, region: np.ndarray, n_regions: int,
                settings: DICSettings, seed_points_xy=None, seed_guess_px=(0.0, 0.0),
                tries_per_region: int = 8) -> list[tuple[int, int, Seed]]:
-    """ZNCC-searched seeds: up to ``tries_per_region`` candidates per region, best-scoring first."""
-    seeds = []
+    """ZNCC-searched seeds: up to ``tries_per_region`` candidates per region, best-scoring first.
+
+    Regions are searched on as many threads as numba uses (OpenCV releases the GIL); the result does not
+    depend on the thread count.
+    """
     half = grid.half
-    for region_id in range(n_regions):
+
+    def search_region(region_id: int) -> list[tuple[int, int, Seed]]:
         found = []
         for r, c in _seed_candidates(grid, region, region_id, seed_points_xy)[:tries_per_region]:
             seed = zncc_search(reference, deformed, int(grid.x[r, c]), int(grid.y[r, c]), half,
@@ -310,8 +315,15 @@ def find_seeds(reference: np.ndarray, deformed: np.ndarray, grid: PoiGrid, regio
             if seed is not None and np.isfinite(seed.zncc):
                 found.append((r, c, seed))
         found.sort(key=lambda item: -item[2].zncc)
-        seeds.extend(found)
-    return seeds
+        return found
+
+    workers = max(1, min(numba.get_num_threads(), n_regions))
+    if workers == 1:
+        per_region = [search_region(k) for k in range(n_regions)]
+    else:
+        with ThreadPoolExecutor(workers) as pool:
+            per_region = list(pool.map(search_region, range(n_regions)))
+    return [seed for found in per_region for seed in found]
 
 
 def correlate(reference: np.ndarray, deformed: np.ndarray, settings: DICSettings | None = None, *,
