@@ -92,20 +92,20 @@ _MONOMIALS = np.array([[0, 0, 1.0], [1, 0, 1.0], [0, 1, 1.0], [2, 0, 0.5], [1, 1
 
 
 @numba.njit(cache=True, fastmath=True)
-def _copy_row(image, grad_x, grad_y, row, col0, n, mean, f, fx, fy, k0):
-    """Copy one subset row into the buffers (values minus ``mean``, gradients); return its sum of squares."""
-    image_row = image[row, col0:col0 + n]
-    gx_row = grad_x[row, col0:col0 + n]
-    gy_row = grad_y[row, col0:col0 + n]
+def _copy_row(image_flat, gx_flat, gy_flat, start, n, mean, f, fx, fy, k0):
+    """Copy one subset row (``n`` pixels from flat index ``start``) into the buffers (values minus ``mean``,
+    gradients); return its sum of squares. Flat arrays and unsigned offsets: no per-row views of the shared
+    images (each view is an atomic reference count that the threads would fight over), no wrap-around code."""
+    base = np.uint64(start)
     f_row = f[k0:k0 + n]
     fx_row = fx[k0:k0 + n]
     fy_row = fy[k0:k0 + n]
     sum_sq = 0.0
-    for c in range(n):
-        value = image_row[c] - mean
+    for c in range(np.uint64(n)):
+        value = image_flat[base + c] - mean
         f_row[c] = value
-        fx_row[c] = gx_row[c]
-        fy_row[c] = gy_row[c]
+        fx_row[c] = gx_flat[base + c]
+        fy_row[c] = gy_flat[base + c]
         sum_sq += value * value
     return sum_sq
 
@@ -199,11 +199,15 @@ def prepare_reference(image, grad_x, grad_y, x0, y0, half, order, min_std, f, fx
     if x0 - half < 0 or y0 - half < 0 or x0 + half >= cols or y0 + half >= rows:
         return OUT_OF_IMAGE, 0.0, 0.0, 0.0
     n = 2 * half + 1
+    image_flat = image.reshape(-1)
+    gx_flat = grad_x.reshape(-1)
+    gy_flat = grad_y.reshape(-1)
+    corner = (y0 - half) * cols + x0 - half
     total = 0.0
     for r in range(n):
-        image_row = image[y0 - half + r, x0 - half:x0 + half + 1]
-        for c in range(n):
-            total += image_row[c]
+        base = np.uint64(corner + r * cols)
+        for c in range(np.uint64(n)):
+            total += image_flat[base + c]
     if not np.isfinite(total):
         return INVALID_IMAGE, 0.0, 0.0, 0.0
     mean = total / (n * n)
@@ -215,7 +219,7 @@ def prepare_reference(image, grad_x, grad_y, x0, y0, half, order, min_std, f, fx
     dxs = np.arange(-half, half + 1).astype(np.float64)
     for r in range(n):
         dy = float(r - half)
-        row_sq = _copy_row(image, grad_x, grad_y, y0 - half + r, x0 - half, n, mean, f, fx, fy, k)
+        row_sq = _copy_row(image_flat, gx_flat, gy_flat, corner + r * cols, n, mean, f, fx, fy, k)
         # Separate short reductions (3-5 accumulators each) vectorise; one fused loop spills its ~20.
         if order == 1:
             xx0, xx1, xx2 = _moments3(fx, fx, k, dxs)
