@@ -436,17 +436,15 @@ def _row_sums(g, f, fx, fy, k0, dxs):
     ry0 = 0.0
     ry1 = 0.0
     n = g.shape[0]
-    # Row slices: indices from range(n) are provably >= 0, so no wrap-around code blocks the vectoriser.
-    f_row = f[k0:k0 + n]
-    fx_row = fx[k0:k0 + n]
-    fy_row = fy[k0:k0 + n]
-    for c in range(n):
+    # Unsigned indices: no wrap-around code to block the vectoriser (and no views to reference-count).
+    k = np.uint64(k0)
+    for c in range(np.uint64(n)):
         value = np.float64(g[c])
         sum_g += value
         sum_gg += value * value
-        sum_fg += f_row[c] * value
-        gxg = fx_row[c] * value
-        gyg = fy_row[c] * value
+        sum_fg += f[k + c] * value
+        gxg = fx[k + c] * value
+        gyg = fy[k + c] * value
         rx0 += gxg
         rx1 += gxg * dxs[c]
         ry0 += gyg
