@@ -375,3 +375,16 @@ def test_prepared_reference_gives_the_same_result(pair):
     assert np.nanmax(np.abs(plain.parameters - again.parameters)) < 1e-12
     with pytest.raises(ValueError, match="does not match the settings"):
         correlate(prepared, deformed, DICSettings(subset_size=21, step=10, interpolation="bicubic"))
+
+
+def test_bias_falls_with_speckle_size_and_the_size_conventions_agree():
+    """The report's sweep (small images here): biquintic below bicubic and falling with the speckle size; a
+    pattern's single-blob FWHM is its autocorrelation size / sqrt(2) (Gaussian blobs)."""
+    from workbench.experiments.dic_accuracy import bias_size_sweep, blob_fwhm_px
+    rows = bias_size_sweep((2.5, 4.0), shape=(160, 160))
+    for row in rows:
+        assert row["biquintic"] < row["bicubic"]
+        assert row["opencorr_bicubic_reference"] is None   # the external figures belong to 512 x 512 pairs
+    assert rows[1]["biquintic"] < rows[0]["biquintic"] / 5
+    assert abs(blob_fwhm_px(4.0) - 4.0 / np.sqrt(2.0)) < 0.01
+    assert abs(blob_fwhm_px(3.54) - 2.5) < 0.02
