@@ -232,6 +232,24 @@ def test_rotation_converges_from_seeds(speckle, angle_deg):
     assert np.abs(angle - angle_deg).max() < 0.01
 
 
+def test_seed_search_stops_at_a_good_unrotated_match_and_finds_rotations_otherwise(speckle):
+    from measurement.dic.initial import DEFAULT_SEED_ANGLES_DEG, zncc_search
+    reference = speckle.render_reference((256, 256))
+    shifted = speckle.render_deformed((256, 256), Translation(3.3, -2.6))
+    quick = zncc_search(reference, shifted, 128, 128, 15, 10, angles_deg=DEFAULT_SEED_ANGLES_DEG)
+    exhaustive = zncc_search(reference, shifted, 128, 128, 15, 10, angles_deg=DEFAULT_SEED_ANGLES_DEG,
+                             accept_zncc=2.0)
+    for seed in (quick, exhaustive):
+        assert seed.zncc > 0.9
+        assert abs(seed.parameters[0] - 3.3) < 0.3 and abs(seed.parameters[6] + 2.6) < 0.3
+        assert abs(seed.parameters[7]) < 1e-12            # no rotation chosen
+    # a 30 deg turn matches badly unrotated, so every angle is tried and the right one wins
+    turned = speckle.render_deformed((256, 256), Rotation(30.0, centre_xy_px=(128, 128)))
+    seed = zncc_search(reference, turned, 128, 128, 15, 10, angles_deg=DEFAULT_SEED_ANGLES_DEG)
+    assert seed.zncc > 0.8
+    assert np.rad2deg(np.arctan2(seed.parameters[7], 1 + seed.parameters[1])) == pytest.approx(30.0, abs=0.01)
+
+
 def test_large_varying_displacement_from_one_seed():
     shape = (320, 320)
     pattern = gaussian_speckle(extent_for_shape(shape, margin_px=60), 1.8, seed=8)

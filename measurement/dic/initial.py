@@ -78,7 +78,7 @@ def _subpixel_peak(score: np.ndarray, row: int, col: int) -> tuple[float, float]
 
 def zncc_search(reference: np.ndarray, deformed: np.ndarray, x: int, y: int, half: int, search_radius_px: int,
                 centre_guess_px: tuple[float, float] = (0.0, 0.0),
-                angles_deg: tuple[float, ...] = (0.0,)) -> Seed | None:
+                angles_deg: tuple[float, ...] = (0.0,), accept_zncc: float = 0.9) -> Seed | None:
     """Exhaustive ZNCC search for the subset at ``(x, y)`` within a window of the deformed image.
 
     Parameters
@@ -95,6 +95,10 @@ def zncc_search(reference: np.ndarray, deformed: np.ndarray, x: int, y: int, hal
         Centre of the search window, px.
     angles_deg : tuple of float
         Rotations of the reference subset to try (deg, +x towards +y).
+    accept_zncc : float
+        The unrotated subset is tried first; if its best match reaches this ZNCC the other angles are skipped
+        (a subset that matches that well unrotated is turned by a few degrees at most, which IC-GN takes from
+        a translation). Set above 1 to always try every angle.
 
     Returns
     -------
@@ -119,7 +123,9 @@ def zncc_search(reference: np.ndarray, deformed: np.ndarray, x: int, y: int, hal
     window = np.ascontiguousarray(deformed[wy0:wy1, wx0:wx1], dtype=np.float32)
     patch = np.ascontiguousarray(reference[y - reach:y + reach + 1, x - reach:x + reach + 1], dtype=np.float32)
     best = None
-    for angle in angles_deg:
+    # 0 deg first (if asked for), so that a good unrotated match can end the search.
+    ordered = sorted(angles_deg, key=lambda a: a != 0.0)
+    for angle in ordered:
         if angle == 0.0:
             template = patch[reach - half:reach + half + 1, reach - half:reach + half + 1]
         else:
@@ -136,6 +142,8 @@ def zncc_search(reference: np.ndarray, deformed: np.ndarray, x: int, y: int, hal
         _, peak, _, (col, row) = cv2.minMaxLoc(score)
         if best is None or peak > best[0]:
             best = (peak, row, col, angle, score)
+        if angle == 0.0 and peak >= accept_zncc:
+            break
     if best is None or not np.isfinite(best[0]):
         return None
     peak, row, col, angle, score = best
