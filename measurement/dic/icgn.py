@@ -320,10 +320,11 @@ def _quadratic_range(a, b, c, half):
 
 
 @numba.njit(inline="always")
-def _warp_row(ax, bx, cx, ay, by, cy, half, tx, ty, ix_minus_c, iy):
-    """Warped positions of one subset row as integer cells (x cell minus the pixel index) and fractions."""
-    for c in range(2 * half + 1):
-        dx = float(c - half)
+def _warp_row(ax, bx, cx, ay, by, cy, dxs, tx, ty, ix_minus_c, iy):
+    """Warped positions of one subset row (offsets ``dxs`` from the centre column) as integer cells (x cell
+    minus the pixel index) and fractions."""
+    for c in range(dxs.shape[0]):
+        dx = dxs[c]   # a float array: AVX2 has no packed int64 -> double conversion
         x = ax + dx * (bx + cx * dx)
         y = ay + dx * (by + cy * dx)
         # int32 conversions vectorise (vcvttpd2dq); AVX2 has no packed double -> int64.
@@ -453,18 +454,34 @@ def _row_sums(g, f, fx, fy, k0, dxs):
 
 
 @numba.njit(cache=True, fastmath=True)
-def _row_sums_second(g, fx, fy, k0, dxs):
-    """The second-order extra sums of one row: f_x g dx^2 and f_y g dx^2."""
+def _row_sums_second(g, f, fx, fy, k0, dxs):
+    """As :func:`_row_sums`, with the second-order sums f_x g dx^2 and f_y g dx^2 in the same pass."""
+    sum_g = 0.0
+    sum_gg = 0.0
+    sum_fg = 0.0
+    rx0 = 0.0
+    rx1 = 0.0
     rx2 = 0.0
+    ry0 = 0.0
+    ry1 = 0.0
     ry2 = 0.0
     n = g.shape[0]
-    fx_row = fx[k0:k0 + n]
-    fy_row = fy[k0:k0 + n]
-    for c in range(n):
-        d2 = dxs[c] * dxs[c] * g[c]
-        rx2 += fx_row[c] * d2
-        ry2 += fy_row[c] * d2
-    return rx2, ry2
+    k = np.uint64(k0)
+    for c in range(np.uint64(n)):
+        value = np.float64(g[c])
+        d = dxs[c]
+        sum_g += value
+        sum_gg += value * value
+        sum_fg += f[k + c] * value
+        gxg = fx[k + c] * value
+        gyg = fy[k + c] * value
+        rx0 += gxg
+        rx1 += gxg * d
+        rx2 += gxg * d * d
+        ry0 += gyg
+        ry1 += gyg * d
+        ry2 += gyg * d * d
+    return sum_g, sum_gg, sum_fg, rx0, rx1, rx2, ry0, ry1, ry2
 
 
 @numba.njit(cache=True)
@@ -551,12 +568,16 @@ def iterate(coef, degree, bad, check_bad, x0, y0, half, order, f, fx, fy, delta_
                 return OUT_OF_IMAGE, zncc, iteration
             if check_bad and _row_touches_bad(bad, ax, bx, cx, ay, by, cy, half):
                 return INVALID_IMAGE, zncc, iteration
-            _warp_row(ax, bx, cx, ay, by, cy, half, tx, ty, ix_minus_c, iy)
+            _warp_row(ax, bx, cx, ay, by, cy, dxs, tx, ty, ix_minus_c, iy)
             if degree == 5:
                 _sample_row_quintic(cf, cols, half, tx, ty, ix_minus_c, iy, g_row)
             else:
                 _sample_row_cubic(cf, cols, half, tx, ty, ix_minus_c, iy, g_row)
-            sg, sgg, sfg, rx0, rx1, ry0, ry1 = _row_sums(g_row, f, fx, fy, r * n, dxs)
+            if order == 1:
+                sg, sgg, sfg, rx0, rx1, ry0, ry1 = _row_sums(g_row, f, fx, fy, r * n, dxs)
+                rx2 = ry2 = 0.0
+            else:
+                sg, sgg, sfg, rx0, rx1, rx2, ry0, ry1, ry2 = _row_sums_second(g_row, f, fx, fy, r * n, dxs)
             sum_g += sg
             sum_gg += sgg
             sum_fg += sfg
@@ -567,7 +588,6 @@ def iterate(coef, degree, bad, check_bad, x0, y0, half, order, f, fx, fy, delta_
             g_j[nm + 1] += ry1
             g_j[nm + 2] += ry0 * dy
             if order == 2:
-                rx2, ry2 = _row_sums_second(g_row, fx, fy, r * n, dxs)
                 g_j[3] += 0.5 * rx2
                 g_j[4] += rx1 * dy
                 g_j[5] += 0.5 * rx0 * dy * dy
