@@ -97,15 +97,13 @@ def _copy_row(image_flat, gx_flat, gy_flat, start, n, mean, f, fx, fy, k0):
     gradients); return its sum of squares. Flat arrays and unsigned offsets: no per-row views of the shared
     images (each view is an atomic reference count that the threads would fight over), no wrap-around code."""
     base = np.uint64(start)
-    f_row = f[k0:k0 + n]
-    fx_row = fx[k0:k0 + n]
-    fy_row = fy[k0:k0 + n]
+    k = np.uint64(k0)
     sum_sq = 0.0
     for c in range(np.uint64(n)):
         value = image_flat[base + c] - mean
-        f_row[c] = value
-        fx_row[c] = gx_flat[base + c]
-        fy_row[c] = gy_flat[base + c]
+        f[k + c] = value
+        fx[k + c] = gx_flat[base + c]
+        fy[k + c] = gy_flat[base + c]
         sum_sq += value * value
     return sum_sq
 
@@ -113,12 +111,10 @@ def _copy_row(image_flat, gx_flat, gy_flat, start, n, mean, f, fx, fy, k0):
 @numba.njit(cache=True, fastmath=True)
 def _moments3(p, q, k0, dxs):
     """sum p q dx^j, j = 0..2, over one row (``p[k0:k0 + len(dxs)]``)."""
-    n = dxs.shape[0]
-    p_row = p[k0:k0 + n]
-    q_row = q[k0:k0 + n]
+    k = np.uint64(k0)
     m0 = m1 = m2 = 0.0
-    for c in range(n):
-        pq = p_row[c] * q_row[c]
+    for c in range(np.uint64(dxs.shape[0])):
+        pq = p[k + c] * q[k + c]
         d = dxs[c]
         m0 += pq
         m1 += pq * d
@@ -129,12 +125,10 @@ def _moments3(p, q, k0, dxs):
 @numba.njit(cache=True, fastmath=True)
 def _moments5(p, q, k0, dxs):
     """sum p q dx^j, j = 0..4, over one row."""
-    n = dxs.shape[0]
-    p_row = p[k0:k0 + n]
-    q_row = q[k0:k0 + n]
+    k = np.uint64(k0)
     m0 = m1 = m2 = m3 = m4 = 0.0
-    for c in range(n):
-        pq = p_row[c] * q_row[c]
+    for c in range(np.uint64(dxs.shape[0])):
+        pq = p[k + c] * q[k + c]
         d = dxs[c]
         d2 = d * d
         m0 += pq
@@ -148,11 +142,10 @@ def _moments5(p, q, k0, dxs):
 @numba.njit(cache=True, fastmath=True)
 def _sums3(p, k0, dxs):
     """sum p dx^j, j = 0..2, over one row."""
-    n = dxs.shape[0]
-    p_row = p[k0:k0 + n]
+    k = np.uint64(k0)
     m0 = m1 = m2 = 0.0
-    for c in range(n):
-        value = p_row[c]
+    for c in range(np.uint64(dxs.shape[0])):
+        value = p[k + c]
         d = dxs[c]
         m0 += value
         m1 += value * d
