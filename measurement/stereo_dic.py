@@ -14,6 +14,7 @@ magnitude.
 """
 from __future__ import annotations
 
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 
 import cv2
@@ -162,14 +163,18 @@ def feature_seeds(matches: FeatureMatches, grid: PoiGrid, regions: int, per_regi
 
 def correlate_with_features(reference: np.ndarray | PreparedImage, target: np.ndarray, settings: DICSettings,
                             grid: PoiGrid, name: str = "target",
-                            reference_features: Features | None = None) -> DICResult:
+                            reference_features: Features | None = None,
+                            matches: FeatureMatches | None = None) -> DICResult:
     """DIC of ``reference`` -> ``target`` over ``grid``, seeded by feature matches (any disparity/rotation).
 
     ``reference`` may be prepared once (:func:`measurement.dic.correlate.prepare_image`) and its features detected
-    once (:func:`detect_features`) for a whole sequence.
+    once (:func:`detect_features`) for a whole sequence; ``matches`` (from :func:`match_features`) skips the
+    matching.
     """
     values = reference.values if isinstance(reference, PreparedImage) else reference
-    matches = match_features(reference_features if reference_features is not None else values, target, name=name)
+    if matches is None:
+        matches = match_features(reference_features if reference_features is not None else values, target,
+                                 name=name)
     seeds = feature_seeds(matches, grid, settings.regions)
     if not seeds:
         raise StereoMatchError(f"no seed could be placed for the {name} image: too few feature matches inside "
@@ -276,10 +281,15 @@ def measure_state(left: ScheimpflugCamera, right: ScheimpflugCamera, R_right_fro
     """Match left-ref -> left-def and left-ref -> right-def, triangulate, and difference with the reference."""
     _check_rig_images(left, right, {"left deformed": left_def, "right deformed": right_def})
     reference = shape.reference if shape.reference is not None else left_ref
+    features = shape.reference_features if shape.reference_features is not None else detect_features(left_ref)
+    # The two feature matchings (OpenCV, single-threaded for the most part) run side by side.
+    with ThreadPoolExecutor(2) as pool:
+        left_matches, right_matches = pool.map(lambda item: match_features(features, item[0], name=item[1]),
+                                               ((left_def, "left deformed"), (right_def, "right deformed")))
     left_match = correlate_with_features(reference, left_def, settings, shape.grid, name="left deformed",
-                                         reference_features=shape.reference_features)
+                                         matches=left_matches)
     right_match = correlate_with_features(reference, right_def, settings, shape.grid, name="right deformed",
-                                          reference_features=shape.reference_features)
+                                          matches=right_matches)
     base = np.column_stack([shape.x, shape.y]).astype(np.float64)
     tri = triangulate(left, right, R_right_from_left, T_right_from_left_mm,
                       base + np.column_stack([left_match.u, left_match.v]),

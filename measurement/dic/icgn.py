@@ -329,6 +329,21 @@ def _warp_row(ax, bx, cx, ay, by, cy, dxs, tx, ty, ix_minus_c, iy):
         iy[c] = jy
 
 
+#: Pixels per vector in the sampling loops (float32 on AVX2). Runs are sampled in whole vectors where that is
+#: safe: the few extra samples past a run's end land where the next run (or the padding) overwrites them, and
+#: the vector loop never falls into its scalar remainder, which costs ~10x per pixel. Rows cut into short runs
+#: (strain, rotation, a stereo pair's foreshortening) profit most.
+LANES = 8
+
+
+@numba.njit(inline="always")
+def _vector_stop(start, end, overrun_ok):
+    """Loop end for the run ``[start, end)``: rounded up to whole vectors when reading past it is safe."""
+    if overrun_ok:
+        return start + ((end - start + LANES - 1) // LANES) * LANES
+    return end
+
+
 @numba.njit(inline="always")
 def _is_single_run(ix_minus_c, iy, n):
     """True if the whole row shares one coefficient window offset (a vectorised test; the scan is scalar)."""
@@ -349,7 +364,7 @@ def _run_end(ix_minus_c, iy, start, n):
 
 # Sampling a warped subset row: the row is split into runs of pixels whose 6 x 6 (or 4 x 4) coefficient
 # windows move by exactly one column per pixel. Within a run the coefficient loads are unit-stride, so LLVM
-# vectorises the loop (AVX2: 4 pixels at a time) without gathers. A run ends where the x or y cell changes
+# vectorises the loop (AVX2, float32: 8 pixels at a time) without gathers. A run ends where the x or y cell changes
 # other than by the step, i.e. about 1 + |ux| 2M + |vx| 2M times per row: long runs for small rotations and
 # strains. Unsigned indices keep numba from emitting negative-index wrap-around code that would block the
 # vectoriser. The sampling loop only writes the samples; the sums are a second loop over the row, because
@@ -358,8 +373,11 @@ def _run_end(ix_minus_c, iy, start, n):
 # Two sampling kernels, one per spline degree, on purpose: a single kernel with the degree as a
 # (loop-invariant) branch measured 5-10 % slower in benchmarks/dic_speed.py.
 @numba.njit(cache=True, fastmath=True)
-def _sample_row_quintic(cf, cols, half, tx, ty, ix_minus_c, iy, g):
-    """Biquintic samples ``g`` (2M + 1,) of one warped row (positions from :func:`_warp_row`, support inside)."""
+def _sample_row_quintic(cf, rows, cols, half, tx, ty, ix_minus_c, iy, g):
+    """Biquintic samples ``g`` of one warped row (positions from :func:`_warp_row`, support inside).
+
+    ``tx``, ``ty`` and ``g`` hold 2M + 1 + LANES entries (the padding takes the overrun of the last run).
+    """
     n = 2 * half + 1
     stride = np.uint64(cols)
     one, two, three, four, five = np.uint64(1), np.uint64(2), np.uint64(3), np.uint64(4), np.uint64(5)
@@ -367,8 +385,11 @@ def _sample_row_quintic(cf, cols, half, tx, ty, ix_minus_c, iy, g):
     start = 0
     while start < n:
         end = n if single_run else _run_end(ix_minus_c, iy, start, n)
+        # Reading up to LANES - 1 columns past the run stays inside the array unless its last coefficient row
+        # is the array's last row.
+        stop = _vector_stop(start, end, iy[start] + 3 < rows - 1)
         base = np.uint64((iy[start] - 2) * cols + ix_minus_c[start] - 2)
-        for cu in range(np.uint64(start), np.uint64(end)):
+        for cu in range(np.uint64(start), np.uint64(stop)):
             b = base + cu
             x0, x1, x2, x3, x4, x5 = quintic_weights_f32(tx[cu])
             y0, y1, y2, y3, y4, y5 = quintic_weights_f32(ty[cu])
@@ -394,7 +415,7 @@ def _sample_row_quintic(cf, cols, half, tx, ty, ix_minus_c, iy, g):
 
 
 @numba.njit(cache=True, fastmath=True)
-def _sample_row_cubic(cf, cols, half, tx, ty, ix_minus_c, iy, g):
+def _sample_row_cubic(cf, rows, cols, half, tx, ty, ix_minus_c, iy, g):
     """As :func:`_sample_row_quintic`, bicubic."""
     n = 2 * half + 1
     stride = np.uint64(cols)
@@ -403,8 +424,9 @@ def _sample_row_cubic(cf, cols, half, tx, ty, ix_minus_c, iy, g):
     start = 0
     while start < n:
         end = n if single_run else _run_end(ix_minus_c, iy, start, n)
+        stop = _vector_stop(start, end, iy[start] + 2 < rows - 1)
         base = np.uint64((iy[start] - 1) * cols + ix_minus_c[start] - 1)
-        for cu in range(np.uint64(start), np.uint64(end)):
+        for cu in range(np.uint64(start), np.uint64(stop)):
             b = base + cu
             x0, x1, x2, x3 = cubic_weights_f32(tx[cu])
             y0, y1, y2, y3 = cubic_weights_f32(ty[cu])
@@ -429,7 +451,7 @@ def _row_sums(g, f, fx, fy, k0, dxs):
     rx1 = 0.0
     ry0 = 0.0
     ry1 = 0.0
-    n = g.shape[0]
+    n = dxs.shape[0]   # g is padded (see LANES)
     # Unsigned indices: no wrap-around code to block the vectoriser (and no views to reference-count).
     k = np.uint64(k0)
     for c in range(np.uint64(n)):
@@ -458,7 +480,7 @@ def _row_sums_second(g, f, fx, fy, k0, dxs):
     ry0 = 0.0
     ry1 = 0.0
     ry2 = 0.0
-    n = g.shape[0]
+    n = dxs.shape[0]   # g is padded (see LANES)
     k = np.uint64(k0)
     for c in range(np.uint64(n)):
         value = np.float64(g[c])
@@ -532,11 +554,11 @@ def iterate(coef, degree, bad, check_bad, x0, y0, half, order, f, fx, fy, delta_
     b = np.empty(npar)
     step = np.empty(npar)
     dp = np.zeros(12)
-    tx = np.empty(n, dtype=np.float32)
-    ty = np.empty(n, dtype=np.float32)
+    tx = np.zeros(n + LANES, dtype=np.float32)   # padded: see LANES
+    ty = np.zeros(n + LANES, dtype=np.float32)
     ix_minus_c = np.empty(n, dtype=np.int32)
     iy = np.empty(n, dtype=np.int32)
-    g_row = np.empty(n, dtype=np.float32)
+    g_row = np.empty(n + LANES, dtype=np.float32)
     dxs = np.arange(-half, half + 1).astype(np.float64)
     zncc = np.nan
     for iteration in range(1, max_iterations + 1):
@@ -563,9 +585,9 @@ def iterate(coef, degree, bad, check_bad, x0, y0, half, order, f, fx, fy, delta_
                 return INVALID_IMAGE, zncc, iteration
             _warp_row(ax, bx, cx, ay, by, cy, dxs, tx, ty, ix_minus_c, iy)
             if degree == 5:
-                _sample_row_quintic(cf, cols, half, tx, ty, ix_minus_c, iy, g_row)
+                _sample_row_quintic(cf, rows, cols, half, tx, ty, ix_minus_c, iy, g_row)
             else:
-                _sample_row_cubic(cf, cols, half, tx, ty, ix_minus_c, iy, g_row)
+                _sample_row_cubic(cf, rows, cols, half, tx, ty, ix_minus_c, iy, g_row)
             if order == 1:
                 sg, sgg, sfg, rx0, rx1, ry0, ry1 = _row_sums(g_row, f, fx, fy, r * n, dxs)
                 rx2 = ry2 = 0.0
