@@ -113,7 +113,7 @@ def propagate(image, grad_x, grad_y, coef, degree, bad, check_bad, grid_x, grid_
     ----------
     image, grad_x, grad_y : ndarray of float64, shape (rows, cols)
         Reference image and its spline gradients at pixel centres.
-    coef : ndarray of float64, shape (rows, cols)
+    coef : ndarray of float32, shape (rows, cols)
         B-spline coefficients of the deformed image.
     degree : int
         3 or 5.

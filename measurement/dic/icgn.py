@@ -22,6 +22,10 @@ below ``tolerance_px``.
 
 Reference gradients are those of the B-spline interpolant at the pixel centres (:mod:`.bspline`), so the
 linearisation matches the interpolant the deformed image is sampled with.
+
+Precision: the deformed image is sampled in single precision (float32 coefficients and weights, 8 AVX2 lanes;
+~1e-5 grey, a few 1e-8 px on the bias curves); the reference subset, the Hessian and every sum of the step and
+the ZNCC are double precision.
 """
 from __future__ import annotations
 
