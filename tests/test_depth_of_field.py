@@ -1,30 +1,49 @@
-"""Thin lens + Scheimpflug: an oblique speckled plate is sharper across the field with a tilted sensor."""
+"""Thin lens + Scheimpflug: an oblique speckled plate is sharper across the field with a tilted sensor, and
+the instrument measures it better (noise floor, displacement error)."""
 import pytest
 
 from measurement.image_quality import mean_intensity_gradient
-from workbench.experiments.depth_of_field import run_depth_of_field
+from workbench.experiments.depth_of_field import run_depth_of_field_study
 
 
 @pytest.fixture(scope="module")
-def dof():
+def study():
     # Quarter resolution: the blur in pixels shrinks with the image, so open the aperture (f/2.8).
-    return run_depth_of_field(scale=0.25, object_tilt_deg=38.0, f_number=2.8, spp=64, seed=0)
+    scene, images, figures = run_depth_of_field_study(scale=0.25, object_tilt_deg=38.0, f_number=2.8, spp=32,
+                                                      seed=0, subset_size=21, step=8)
+    return scene, images["static"], figures
 
 
-def test_scheimpflug_sensor_is_sharper(dof):
-    print(f"\nMIG Scheimpflug {dof.mig_scheimpflug:.2f} vs untilted {dof.mig_conventional:.2f} "
-          f"(ratio {dof.mig_ratio:.2f}, sensor tilt {dof.sensor_tilt_deg:.2f} deg); paper 16.88 vs 8.78")
-    assert dof.mig_scheimpflug > 1.1 * dof.mig_conventional
+def test_scheimpflug_sensor_is_sharper(study):
+    _, _, fig = study
+    s, c = fig["scheimpflug"]["mig"], fig["conventional"]["mig"]
+    print(f"\nMIG Scheimpflug {s:.2f} vs untilted {c:.2f} (ratio {s / c:.2f}); paper 16.88 vs 8.78")
+    assert s > 1.1 * c
 
 
-def test_sharpness_is_uniform_only_with_tilt(dof):
+def test_sharpness_is_uniform_only_with_tilt(study):
     """Column-band MIG at the image sides relative to the centre: ~1 tilted, well below 1 untilted."""
+    _, images, _ = study
+
     def side_ratio(img):
         w = img.shape[1]
         bands = [img[:, int(a * w):int(b * w)] for a, b in ((0.02, 0.15), (0.43, 0.57), (0.85, 0.98))]
         left, centre, right = (mean_intensity_gradient(b) for b in bands)
         return min(left, right) / centre
 
-    tilted, untilted = side_ratio(dof.image_scheimpflug), side_ratio(dof.image_conventional)
-    assert tilted > 0.85
-    assert untilted < 0.75
+    assert side_ratio(images["scheimpflug"]) > 0.85
+    assert side_ratio(images["conventional"]) < 0.75
+
+
+def test_tilted_sensor_has_no_blur_and_lower_dic_noise_and_error(study):
+    """Tilted sensor: blur circle < 0.01 px everywhere (Scheimpflug), untilted > 2 px at the plate's ends; the
+    static-pair noise floor is lower and the in-plane move is measured at least 2x more accurately (RMS)."""
+    _, _, fig = study
+    s, c = fig["scheimpflug"], fig["conventional"]
+    print(f"\nblur max {s['blur_px']['max']:.3g} vs {c['blur_px']['max']:.2f} px; noise u {s['noise_floor_px']['u']:.4f} "
+          f"vs {c['noise_floor_px']['u']:.4f} px; error RMS {s['displacement_error_px']['rms']:.4f} vs "
+          f"{c['displacement_error_px']['rms']:.4f} px")
+    assert s["blur_px"]["max"] < 0.01 and c["blur_px"]["max"] > 2.0
+    assert s["converged_static"] == s["points"] and s["converged_moved"] == s["points"]
+    assert s["noise_floor_px"]["u"] < c["noise_floor_px"]["u"] and s["noise_floor_px"]["v"] < c["noise_floor_px"]["v"]
+    assert 2.0 * s["displacement_error_px"]["rms"] < c["displacement_error_px"]["rms"]

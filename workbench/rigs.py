@@ -6,7 +6,8 @@ Conventions: the left camera frame is the world frame; ``X_right = R_right_from_
 from __future__ import annotations
 
 import json
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
+from functools import lru_cache
 from importlib import resources
 
 import cv2
@@ -20,7 +21,9 @@ DEFAULT_PIXEL_PITCH_MM = 0.00345
 #: Working distance of the paper's rig (where the two optical axes pass closest), mm.
 PAPER_WORKING_DISTANCE_MM = 376.0
 
-RIG_NAMES = ("paper",)
+RIG_NAMES = ("paper", "scheimpflug")
+#: Default f-number of the thin lens of the ``scheimpflug`` rig (a modest DIC aperture).
+DEFAULT_F_NUMBER = 8.0
 
 
 def paper_values() -> dict:
@@ -39,6 +42,9 @@ class StereoRig:
     T_right_from_left_mm : (3,)
     pixel_pitch_mm : physical pixel size at ``scale = 1`` divided by ``scale`` (thin-lens renders need it)
     working_distance_mm : distance from the left camera to the point the optical axes meet
+    lens_focal_length_mm : ``(left, right)`` focal length F of each camera's thin lens, or None (the rig
+        defines no lens: experiments choose one)
+    f_number : f-number of those lenses (0 when the rig defines none)
     """
 
     name: str
@@ -48,6 +54,16 @@ class StereoRig:
     T_right_from_left_mm: np.ndarray
     pixel_pitch_mm: float = DEFAULT_PIXEL_PITCH_MM
     working_distance_mm: float = PAPER_WORKING_DISTANCE_MM
+    lens_focal_length_mm: tuple[float, float] | None = None
+    f_number: float = 0.0
+
+    def thin_lens(self, which: str) -> dict:
+        """``{"lens": "thin", "focal_length_mm": F, "f_number": N}`` of a rig that defines its lenses."""
+        if self.lens_focal_length_mm is None:
+            raise ValueError(f"the {self.name!r} rig defines no thin lens")
+        F = self.lens_focal_length_mm[0 if which == "left" else 1]
+        self.camera(which)          # validates the name
+        return {"lens": "thin", "focal_length_mm": float(F), "f_number": float(self.f_number)}
 
     def camera(self, which: str) -> ScheimpflugCamera:
         if which not in ("left", "right"):
@@ -91,8 +107,125 @@ def paper_rig(scale: float = 1.0, pixel_pitch_mm: float = DEFAULT_PIXEL_PITCH_MM
     return StereoRig("paper", cams["left"], cams["right"], R, T, pixel_pitch_mm=pixel_pitch_mm / scale)
 
 
+def facing_plane_world(rig: StereoRig) -> tuple[np.ndarray, np.ndarray]:
+    """The specimen plane the rig is built for: ``(centre_mm (3,), normal (3,))`` in the world frame.
+
+    The plane passes through the point where the optical axes meet; its unit normal points from there
+    to the midpoint of the two camera centres (the specimen faces the cameras' bisector).
+    """
+    centre = rig.optical_axes_meeting_point_mm()
+    to_cameras = 0.5 * (rig.camera_centre_mm("left") + rig.camera_centre_mm("right")) - centre
+    return centre, to_cameras / np.linalg.norm(to_cameras)
+
+
+def scheimpflug_tilt_for_plane(camera: ScheimpflugCamera, R_cam_from_world, t_cam_from_world_mm, centre_world_mm,
+                               normal_world, pixel_pitch_mm: float = DEFAULT_PIXEL_PITCH_MM,
+                               f_number: float = DEFAULT_F_NUMBER) -> tuple[float, float, float, float]:
+    """Sensor tilt and lens focal length that put a thin lens' plane of sharp focus on a given plane.
+
+    The thin-lens rule of the renderer (:func:`scenes.truth.in_focus_points_world_mm`: a sensor point at
+    image distance ``v p_z`` is conjugate to depth ``1 / (1/F - 1/(v p_z))`` on its chief ray) is solved in
+    least squares for ``(alpha, beta, F)``: the in-focus points of a 7 x 7 grid of pixels over the image must
+    lie on the plane. Without distortion the in-focus points of a tilted sensor form one plane (Scheimpflug)
+    and three unknowns fit its three degrees of freedom exactly; Brown distortion bends the surface slightly.
+
+    Returns
+    -------
+    alpha_deg, beta_deg, focal_length_mm, rms_mm
+        ``rms_mm``: RMS distance of the in-focus points from the plane (the residual focus error).
+    """
+    from scipy.optimize import least_squares
+
+    from scenes.camera import SensorSpec
+    from scenes.truth import in_focus_points_world_mm
+
+    c = np.asarray(centre_world_mm, float)
+    n = np.asarray(normal_world, float) / np.linalg.norm(normal_world)
+    u = np.linspace(0, camera.width - 1, 7)
+    v = np.linspace(0, camera.height - 1, 7)
+    pixels = np.stack(np.meshgrid(u, v), -1).reshape(-1, 2)
+    base = replace(camera, alpha_deg=0.0, beta_deg=0.0)
+    image_distance = camera.fx * pixel_pitch_mm
+    depth = float((np.asarray(R_cam_from_world) @ c + np.asarray(t_cam_from_world_mm))[2])
+
+    def spec(p):
+        return SensorSpec(**replace(base, alpha_deg=p[0], beta_deg=p[1]).intrinsics(), width=camera.width,
+                          height=camera.height, lens="thin", focal_length_mm=p[2], f_number=f_number,
+                          pixel_pitch_mm=pixel_pitch_mm)
+
+    def residual(p):
+        return (in_focus_points_world_mm(spec(p), R_cam_from_world, t_cam_from_world_mm, pixels) - c) @ n
+
+    start = np.array([0.0, 0.0, 1.0 / (1.0 / image_distance + 1.0 / depth)])
+    fit = least_squares(residual, start, x_scale=[1.0, 1.0, 1.0], xtol=1e-14, ftol=1e-14, gtol=1e-14)
+    return float(fit.x[0]), float(fit.x[1]), float(fit.x[2]), float(np.sqrt(np.mean(fit.fun ** 2)))
+
+
+@lru_cache(maxsize=8)
+def _scheimpflug_design(f_number: float, pixel_pitch_mm: float) -> tuple:
+    paper = paper_rig(1.0, pixel_pitch_mm)
+    centre, normal = facing_plane_world(paper)
+    return tuple(scheimpflug_tilt_for_plane(paper.camera(side), *paper.pose(side), centre, normal,
+                                            pixel_pitch_mm, f_number) for side in ("left", "right"))
+
+
+def scheimpflug_rig(scale: float = 1.0, f_number: float = DEFAULT_F_NUMBER,
+                    pixel_pitch_mm: float = DEFAULT_PIXEL_PITCH_MM) -> StereoRig:
+    """The paper's stereo geometry with sensor tilts chosen from the Scheimpflug condition.
+
+    Table 1's focal lengths, principal points, distortion and stereo pose (R, T), but each sensor's tilt
+    (alpha, beta) and thin-lens focal length F are solved so that the plane of sharp focus is the specimen
+    face of :func:`facing_plane_world` (through the point where the optical axes meet, facing the cameras'
+    bisector). Table 1's own tilts (beta ~ -/+4.5 deg) focus a plane ~50 deg away from that face; the
+    Scheimpflug condition for it asks for tilts of about a degree (``tan(beta) ~ (v/u) tan(theta)`` with the
+    image/object distance ratio v/u ~ 0.1 and the face ~11.5 deg off each optical axis).
+
+    Lens: image distance ``v = fx * pitch`` (37.6 mm for the left camera at 3.45 um), F ~ 34 mm from the
+    thin-lens equation at the ~376 mm working distance, ``f_number`` f/8 by default.
+    """
+    if not 0 < scale <= 4:
+        raise ValueError(f"scale must be in (0, 4], got {scale}")
+    if not (np.isfinite(f_number) and f_number > 0):
+        raise ValueError(f"f_number must be positive, got {f_number}")
+    paper = paper_rig(1.0, pixel_pitch_mm)
+    design = _scheimpflug_design(float(f_number), float(pixel_pitch_mm))
+    cams = {}
+    for side, (alpha, beta, _, _) in zip(("left", "right"), design):
+        cam = replace(paper.camera(side), alpha_deg=alpha, beta_deg=beta)
+        cams[side] = cam.scaled(scale) if scale != 1.0 else cam
+    return StereoRig("scheimpflug", cams["left"], cams["right"], paper.R_right_from_left, paper.T_right_from_left_mm,
+                     pixel_pitch_mm=pixel_pitch_mm / scale, lens_focal_length_mm=(design[0][2], design[1][2]),
+                     f_number=float(f_number))
+
+
+def scheimpflug_design_report(f_number: float = DEFAULT_F_NUMBER,
+                              pixel_pitch_mm: float = DEFAULT_PIXEL_PITCH_MM) -> dict:
+    """The ``scheimpflug`` rig's optics beside Table 1's tilts, for reports (full-resolution figures).
+
+    Includes the principal-point offset read as a tilt, ``delta_beta ~ (cx - (w-1)/2) / fx`` (and alpha
+    from cy): on planar targets a tilt and a principal-point shift are nearly interchangeable, so part of
+    a calibrated tilt can be principal-point offset traded for tilt.
+    """
+    paper = paper_rig(1.0, pixel_pitch_mm)
+    design = _scheimpflug_design(float(f_number), float(pixel_pitch_mm))
+    out = {"f_number": f_number, "pixel_pitch_mm": pixel_pitch_mm}
+    for side, (alpha, beta, F, rms) in zip(("left", "right"), design):
+        cam = paper.camera(side)
+        v = cam.fx * pixel_pitch_mm
+        out[side] = {"alpha_deg": alpha, "beta_deg": beta, "focal_length_mm": F, "image_distance_mm": v,
+                     "focus_distance_on_axis_mm": 1.0 / (1.0 / F - 1.0 / v), "focus_surface_rms_mm": rms,
+                     "table1_alpha_deg": cam.alpha_deg, "table1_beta_deg": cam.beta_deg,
+                     "principal_point_offset_px": [cam.cx - (cam.width - 1) / 2, cam.cy - (cam.height - 1) / 2],
+                     # a shift of the principal point by d px turns the image like a tilt of d / f rad
+                     "offset_as_tilt_deg": {"beta": float(np.degrees(np.arctan((cam.cx - (cam.width - 1) / 2) / cam.fx))),
+                                            "alpha": float(np.degrees(np.arctan((cam.cy - (cam.height - 1) / 2) / cam.fy)))}}
+    return out
+
+
 def get_rig(name: str, scale: float = 1.0) -> StereoRig:
     """A rig by name; unknown names raise ``ValueError`` listing the known ones."""
     if name == "paper":
         return paper_rig(scale)
+    if name == "scheimpflug":
+        return scheimpflug_rig(scale)
     raise ValueError(f"unknown rig {name!r}; known rigs: {', '.join(RIG_NAMES)}")

@@ -31,10 +31,13 @@ from scenes.noise import SensorNoise
 from scenes.targets import Checkerboard
 from workbench.experiments.checkerboard_views import board_outline_mm, write_checkerboard_dataset
 from workbench.poses import random_board_poses
-from workbench.rigs import StereoRig, paper_rig, paper_values
+from workbench.rigs import StereoRig, get_rig, paper_values
 
-#: The datasheet tilt used for step 1 (a nominal adapter angle, deliberately not the true value).
+#: The datasheet tilt used for step 1 (a nominal adapter angle, deliberately not the true value), per rig.
 DATASHEET_TILT_DEG = {"left": (0.0, -4.0), "right": (0.0, 4.0)}
+RIG_TILT_GUESS_DEG = {"paper": DATASHEET_TILT_DEG,
+                      # the scheimpflug rig's adapters are set to about a degree (true: +1.15 / -1.06 deg)
+                      "scheimpflug": {"left": (0.0, 1.0), "right": (0.0, -1.0)}}
 
 
 def _as_rig(cal) -> CalibratedRig:
@@ -98,14 +101,17 @@ def _reusable_truth(image_dir: Path, rig: StereoRig, n_views: int, seed: int, sp
 
 def reproduce_calibration(out_dir: Path, *, scale: float = 1.0, seed: int = 0, spp: int = 64, noise_grey: float = 1.0,
                           n_calibration: int = 30, n_validation: int = 20, models=("rmm", "pinhole"),
-                          progress: bool = True, refine_corners: bool = False) -> dict:
+                          progress: bool = True, refine_corners: bool = False, rig_name: str = "paper") -> dict:
     """Render, calibrate, validate; writes images, calibration files, ``metrics.json`` and ``report.md``.
 
     Images already rendered in ``out_dir/images`` with the same rig, views, seed, spp and noise are reused.
+    ``rig_name``: the true rig (:func:`workbench.rigs.get_rig`); boards are rendered through its pinhole (the
+    chief-ray geometry that a thin lens shares), its tilt guess from :data:`RIG_TILT_GUESS_DEG`.
     """
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
-    rig = paper_rig(scale)
+    rig = get_rig(rig_name, scale)
+    tilt_guess = RIG_TILT_GUESS_DEG.get(rig_name, DATASHEET_TILT_DEG)
     board = Checkerboard()
     poses = random_board_poses(rig, board_outline_mm(board), n_calibration + n_validation, seed)
     t0 = time.perf_counter()
@@ -124,7 +130,7 @@ def reproduce_calibration(out_dir: Path, *, scale: float = 1.0, seed: int = 0, s
                            if im["camera"] == "left" and im["view"] >= n_calibration])
     metrics = {"scale": scale, "image_size_px": [rig.left.width, rig.left.height], "seed": seed, "spp": spp,
                "noise_grey": noise_grey, "calibration_views": n_calibration, "validation_views": n_validation,
-               "render_s": "reused" if reused else round(t_render, 1), "datasheet_tilt_deg": DATASHEET_TILT_DEG,
+               "render_s": "reused" if reused else round(t_render, 1), "datasheet_tilt_deg": tilt_guess, "rig": rig_name,
                "truth": {s: rig.camera(s).intrinsics() for s in ("left", "right")}, "models": {}}
     # Detect once; every model calibrates from the same corners (detection at 5 MP takes ~3 s per image).
     t0 = time.perf_counter()
@@ -137,8 +143,8 @@ def reproduce_calibration(out_dir: Path, *, scale: float = 1.0, seed: int = 0, s
     for model in models:
         t0 = time.perf_counter()
         cal = calibrate_stereo(cal_pairs.points_left, cal_pairs.points_right, board_mm, cal_pairs.image_size,
-                               model=model, tilt_guess_left_deg=DATASHEET_TILT_DEG["left"],
-                               tilt_guess_right_deg=DATASHEET_TILT_DEG["right"])
+                               model=model, tilt_guess_left_deg=tilt_guess["left"],
+                               tilt_guess_right_deg=tilt_guess["right"])
         t_cal = time.perf_counter() - t0
         suffix = "" if model == "rmm" else f"_{model}"
         save_calibration(cal, out_dir / f"calibration{suffix}.json")

@@ -25,7 +25,7 @@ from measurement.stereo_dic import measure_state, reference_shape
 from measurement.stereo_io import write_state_csv, write_state_vtk
 from scenes.motion import stage_states_mm
 from workbench.experiments.rigid_motion_scenes import load_truth, render_rigid_motion
-from workbench.rigs import paper_rig, paper_values
+from workbench.rigs import get_rig, paper_values
 
 
 def _paper_goal(imposed_mm: np.ndarray) -> dict[str, np.ndarray]:
@@ -44,14 +44,24 @@ def _finite_or_none(value: float) -> float | None:
 
 def _rig_for(calib: str, scale: float, out_dir: Path, seed: int) -> tuple[CalibratedRig, str]:
     """The rig the instrument uses: 'true', 'rendered' (reproduced from rendered boards) or a file."""
+    return _rig_for_name(calib, "paper", scale, out_dir, seed)
+
+
+def _rig_for_name(calib: str, rig_name: str, scale: float, out_dir: Path, seed: int) -> tuple[CalibratedRig, str]:
+    """The instrument's rig for the true rig ``rig_name``: 'true', 'rendered' (from rendered boards) or a file."""
     if calib == "true":
-        rig = paper_rig(scale)
+        rig = get_rig(rig_name, scale)
         return CalibratedRig("rmm", rig.left, rig.right, rig.R_right_from_left, rig.T_right_from_left_mm), "true rig"
     if calib == "rendered":
         path = out_dir / "calibration" / "calibration.json"
-        if not path.is_file():
+        made = out_dir / "calibration" / "metrics.json"
+        # reuse an earlier calibration only if it was reproduced for this rig at this scale and seed
+        stale = made.is_file() and (lambda m: (m.get("rig", "paper"), m.get("scale"), m.get("seed"))
+                                    != (rig_name, scale, seed))(json.loads(made.read_text()))
+        if not path.is_file() or stale:
             from workbench.experiments.calibration import reproduce_calibration
-            reproduce_calibration(out_dir / "calibration", scale=scale, seed=seed, refine_corners=scale >= 0.75)
+            reproduce_calibration(out_dir / "calibration", scale=scale, seed=seed, refine_corners=scale >= 0.75,
+                                  rig_name=rig_name)
         return load_calibration(path), f"calibration reproduced from rendered boards ({path})"
     path = Path(calib)
     if not path.is_file():

@@ -36,7 +36,7 @@ from scenes.specimens import BendingSpecimen
 from scenes.truth import (defocus_blur_px, focal_length_for_focus_mm, in_focus_points_world_mm,
                           points_of_interest_truth, project_points)
 from workbench.experiments.checkerboard_views import EXPOSURE_GREY, sensor_spec_for
-from workbench.rigs import StereoRig, get_rig
+from workbench.rigs import StereoRig, facing_plane_world, get_rig
 
 SIDES = ("left", "right")
 LENSES = ("thin", "pinhole")
@@ -113,11 +113,14 @@ def specimen_reference_pose(rig: StereoRig, centre_world_mm=None) -> tuple[np.nd
     length (specimen x) is perpendicular to world y, so its height (specimen y) is as close to world y
     (down in the left image) as the facing allows.
     """
-    centre = rig.optical_axes_meeting_point_mm() if centre_world_mm is None else np.asarray(centre_world_mm, float)
-    if centre.shape != (3,) or not np.all(np.isfinite(centre)):
-        raise ValueError(f"centre_world_mm must be a finite 3-vector, got {centre_world_mm!r}")
-    to_cameras = 0.5 * (rig.camera_centre_mm("left") + rig.camera_centre_mm("right")) - centre
-    z_spec = -to_cameras / np.linalg.norm(to_cameras)     # into the material, away from the cameras
+    if centre_world_mm is None:
+        centre, normal = facing_plane_world(rig)
+    else:
+        centre = np.asarray(centre_world_mm, float)
+        if centre.shape != (3,) or not np.all(np.isfinite(centre)):
+            raise ValueError(f"centre_world_mm must be a finite 3-vector, got {centre_world_mm!r}")
+        normal = 0.5 * (rig.camera_centre_mm("left") + rig.camera_centre_mm("right")) - centre
+    z_spec = -normal / np.linalg.norm(normal)     # into the material, away from the cameras
     x_spec = np.cross([0.0, 1.0, 0.0], z_spec)
     x_spec /= np.linalg.norm(x_spec)
     y_spec = np.cross(z_spec, x_spec)
