@@ -1,0 +1,156 @@
+"""Three-point bending: truth of the points of interest on the preloaded face, exact strain truth, and the
+whole experiment end to end at reduced scale (scheimpflug rig, thin lens, true calibration)."""
+import json
+import shutil
+
+import cv2
+import numpy as np
+import pytest
+
+from scenes.fields import DisplacementField
+from scenes.truth import project_points
+from workbench.cli import main
+from workbench.experiments.bending import reproduce_bending
+from workbench.experiments.bending_scenes import bending_truth, load_bending_truth
+from workbench.rigs import scheimpflug_rig
+
+SCALE = 0.3
+LOADS = (20.0, 1000.0, 2000.0)
+
+
+class _Homogeneous(DisplacementField):
+    """u = H X: an exact homogeneous deformation (test stand-in for an FE state)."""
+
+    def __init__(self, H):
+        self.H = np.asarray(H, float)
+
+    def displacement_mm(self, X):
+        return np.asarray(X, float) @ self.H.T
+
+    def gradient(self, X):
+        return np.broadcast_to(self.H, (len(X), 3, 3)).copy()
+
+
+@pytest.fixture(scope="module")
+def truth():
+    return bending_truth(scheimpflug_rig(SCALE), lens="thin", loads_N=LOADS)
+
+
+def test_points_of_interest_lie_on_the_preloaded_face_and_project_back_to_their_pixels(truth):
+    """The material point seen by a left reference pixel, moved by the 20 N field, is imaged at that pixel
+    (chief-ray projection, an independent inverse of the ray) to 1e-6 px; state k adds u_k exactly."""
+    spec = truth.specs["left"]
+    rng = np.random.default_rng(0)
+    pixels = np.column_stack([rng.uniform(0.35, 0.65, 200) * spec.width, rng.uniform(0.4, 0.6, 200) * spec.height])
+    X0, X_world = truth.points_of_interest(pixels)
+    assert np.all(np.isfinite(X0)) and np.all(X0[:, 2] == 0.0)
+    back = project_points(spec, *truth.camera_poses["left"], X_world[0])
+    assert np.max(np.abs(back - pixels)) < 1e-6
+    R, t = truth.pose
+    for k in range(len(LOADS)):
+        expected = (X0 + truth.field(k).displacement_mm(X0)) @ R.T + t
+        np.testing.assert_allclose(X_world[k], expected, rtol=0, atol=1e-12)
+    # the preload moves the face by a fraction of a micrometre: the material points differ from the flat face's
+    assert 1e-6 < np.max(np.abs(X_world[0] - (X0 @ R.T + t))) < 1e-3
+
+
+def test_strain_truth_equals_the_homogeneous_green_lagrange_strain_in_the_reference_tangent_plane(truth, monkeypatch):
+    """With u_0 = H0 X and u_k = Hk X, E = (Q^T F^T F Q - I) / 2 with F = F_k F_0^-1 and Q an orthonormal basis of the
+    reference surface's tangent plane (first vector along F_0 e_x), to 1e-12; area change from det, to 1e-12."""
+    rng = np.random.default_rng(1)
+    H0, Hk = 1e-3 * rng.normal(size=(3, 3)), 2e-2 * rng.normal(size=(3, 3))
+    fields = {0: _Homogeneous(H0), 1: _Homogeneous(Hk)}
+    monkeypatch.setattr(type(truth), "field", lambda self, k: fields[k])
+    X = np.column_stack([rng.uniform(-30, 30, 50), rng.uniform(-10, 10, 50), np.zeros(50)])
+    E, Q_world, area = truth.strain_truth(X, 1)
+    R = np.asarray(truth.pose[0])
+    F0, Fk = np.eye(3) + H0, np.eye(3) + Hk
+    F = Fk @ np.linalg.inv(F0)
+    normal = np.linalg.inv(F0).T @ np.array([0.0, 0.0, 1.0])           # Nanson: the reference normal
+    q1 = F0 @ np.array([1.0, 0.0, 0.0])
+    q1 /= np.linalg.norm(q1)
+    q2 = np.cross(normal / np.linalg.norm(normal), q1)
+    Q = np.column_stack([q1, q2])
+    expected = 0.5 * (Q.T @ F.T @ F @ Q - np.eye(2))
+    for n in range(len(X)):
+        np.testing.assert_allclose(Q_world[n], R @ Q, rtol=0, atol=1e-12)
+        np.testing.assert_allclose(E[n], expected, rtol=0, atol=1e-12)
+    C = Q.T @ F.T @ F @ Q
+    np.testing.assert_allclose(area, np.sqrt(np.linalg.det(C)) - 1.0, rtol=0, atol=1e-12)
+
+
+@pytest.fixture(scope="module")
+def experiment(tmp_path_factory):
+    out = tmp_path_factory.mktemp("bending")
+    m = reproduce_bending(out, scale=SCALE, calib="true", spp=16, subset_size=21, step=3, window=11, loads_N=LOADS,
+                          progress=False)
+    return out, m
+
+
+def test_bending_end_to_end_follows_the_fe_truth(experiment):
+    """Reduced scale (noise-dominated): every ROI point measured; the displacement error is noise, not signal (it
+    does not grow from 1000 to 2000 N by more than 20 % and stays below 5 % of the peak truth displacement); the
+    measured neutral axis is within 1 mm of the truth; the area change is compressive on top, tensile below."""
+    _, m = experiment
+    s1, s2 = m["states"]
+    assert s1["points"] == s1["points_total"] == s2["points_total"] == m["points"]
+    for i in range(3):
+        assert s2["U_rmse_um"][i] <= 1.2 * s1["U_rmse_um"][i]
+    assert max(s2["U_rmse_um"][:2]) < 0.05 * s2["truth_max_displacement_um"]
+    assert s2["U_rmse_um"][2] < 0.10 * s2["truth_max_displacement_um"]
+    na = s2["neutral_axis_mm"]
+    assert abs(na["measured"] - na["truth"]) < 1.0
+    top, bottom = s2["area_change_top_bottom"]["measured"]
+    assert top < 0 < bottom
+    assert 300 < s2["peak_truth_strain_ue"] < s2["peak_truth_strain_with_nose_contact_ue"]
+
+
+def test_bending_writes_whole_report_figures_and_per_point_files(experiment):
+    out, m = experiment
+    saved = json.loads((out / "metrics.json").read_text())
+    assert [r["load_N"] for r in saved["states"]] == [1000.0, 2000.0]
+    assert saved["vsg_px"] == (11 - 1) * 3 + 21
+    for name in ("fig7_2000N.png", "fig8_2000N.png", "errors_vs_load.png"):
+        image = cv2.imread(str(out / name))
+        assert image is not None and image.shape[0] > 300
+    report = (out / "report.md").read_text()
+    assert "| 2000 | " in report and "fig8_2000N.png" in report
+    lines = (out / "points" / "state_02.csv").read_text().splitlines()
+    assert len(lines) == m["points"] + 1
+    strain_rows = (out / "points" / "strain_02.csv").read_text().splitlines()
+    assert strain_rows[0].startswith("row,col,x,y,E11")
+    assert not list(out.rglob("*.tmp"))
+    truth = load_bending_truth(out / "images")
+    np.testing.assert_array_equal(truth.loads_N, LOADS)
+
+
+def test_a_state_that_cannot_be_matched_is_named_and_skipped(experiment, tmp_path, capsys):
+    """A blank deformed image: that state is reported with its file name and skipped; the others are measured."""
+    out, _ = experiment
+    shutil.copytree(out / "images", tmp_path / "images")
+    name = load_bending_truth(tmp_path / "images").files[1]["left"]
+    blank = np.full_like(cv2.imread(str(tmp_path / "images" / name), cv2.IMREAD_GRAYSCALE), 128)
+    cv2.imwrite(str(tmp_path / "images" / name), blank)
+    m = reproduce_bending(tmp_path, scale=SCALE, calib="true", spp=16, subset_size=21, step=3, window=11,
+                          loads_N=LOADS, progress=False)
+    first, second = m["states"]
+    assert "error" in first and name in first["error"]
+    assert "error" not in second and second["points"] == m["points"]
+
+
+def test_cli_refuses_an_even_window_before_any_work(tmp_path, capsys):
+    assert main(["reproduce", "bending", "--window", "4", "--out", str(tmp_path / "x")]) == 2
+    assert "--window must be 0 (per-triangle strain) or an odd number >= 3, got 4" in capsys.readouterr().err
+    assert not (tmp_path / "x").exists()
+
+
+def test_cli_exits_non_zero_when_no_state_was_measured(tmp_path, monkeypatch, capsys):
+    import workbench.experiments.bending as bending
+
+    def nothing_measured(out, **kwargs):
+        return {"calibration": "true rig", "points": 10, "vsg_px": 135,
+                "states": [{"state": 1, "load_N": 200.0, "error": "left_01.png: too few features"}]}
+
+    monkeypatch.setattr(bending, "reproduce_bending", nothing_measured)
+    assert main(["reproduce", "bending", "--out", str(tmp_path)]) == 1
+    assert "skipped (left_01.png: too few features)" in capsys.readouterr().out

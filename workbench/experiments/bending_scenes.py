@@ -1,0 +1,270 @@
+"""The paper's three-point bending test, truth side: an FE-deformed speckled beam rendered in stereo.
+
+The beam (:class:`scenes.specimens.BendingSpecimen`, 120 x 30 x 10 mm) stands where the rig's optical axes meet,
+its face towards the cameras' bisector, exactly as in the rigid-motion test. It is loaded in three-point
+bending (:mod:`scenes.fields`: a linear-elastic finite-element solution, aluminium, supports 100 mm apart, the
+loading nose at mid-span on the top face pushing down = +y of the specimen, i.e. down in the images) at the
+paper's loads: a 20 N reference, then 200 -> 2000 N in 200 N steps. Every state moves every surface vertex of
+the beam by the FE displacement at its load and is rendered in both cameras.
+
+Truth of a DIC point (DESIGN §3): the chief ray of the left reference pixel hits the face *deformed by the 20 N
+preload* at the material point X0 (:func:`scenes.truth.intersect_deformed_front_face`); its true position in
+state k is ``R (X0 + u_k(X0)) + t``, and its true surface strain relative to the reference state follows from
+the exact displacement gradients of both states (:meth:`BendingTruth.strain_truth`).
+"""
+from __future__ import annotations
+
+import json
+import warnings
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import cv2
+import numpy as np
+from tqdm import tqdm
+
+from scenes.camera import SensorSpec
+from scenes.fields import ThreePointBending, three_point_bending_field
+from scenes.noise import SensorNoise, to_image_dtype
+from scenes.render import render_view
+from scenes.specimens import BendingSpecimen
+from scenes.truth import focal_length_for_focus_mm, intersect_deformed_front_face, pixel_rays, project_points
+from workbench.experiments.checkerboard_views import EXPOSURE_GREY, sensor_spec_for
+from workbench.experiments.rigid_motion_scenes import (BLUR_WARNING_PX, check_specimen_in_view, face_blur_px,
+                                                       focus_plane_angle_deg, specimen_reference_pose)
+from workbench.rigs import DEFAULT_F_NUMBER, StereoRig, get_rig
+
+SIDES = ("left", "right")
+LENSES = ("thin", "pinhole")
+#: The paper's loads (§4.4): a 20 N reference, then 200 -> 2000 N in 200 N steps.
+BENDING_LOADS_N = (20.0,) + tuple(200.0 * k for k in range(1, 11))
+
+
+@dataclass
+class BendingTruth:
+    """Everything needed to score a stereo-DIC run on the rendered bending images.
+
+    Attributes
+    ----------
+    specimen : BendingSpecimen
+    beam : ThreePointBending, the FE model (geometry, material, supports, mesh)
+    specs : {"left"|"right": SensorSpec}, the cameras exactly as rendered
+    camera_poses : {"left"|"right": (R_cam_from_world, t_cam_from_world_mm)}; world = left camera frame
+    pose : (R_world_from_specimen (3, 3), t_world_from_specimen_mm (3,)) of the (undeformed) beam
+    loads_N : (K,) load of every state; state 0 is the reference
+    files : K ``{"left": name, "right": name}``
+    info : the rest of truth.json
+    """
+
+    specimen: BendingSpecimen
+    beam: ThreePointBending
+    specs: dict[str, SensorSpec]
+    camera_poses: dict[str, tuple[np.ndarray, np.ndarray]]
+    pose: tuple[np.ndarray, np.ndarray]
+    loads_N: np.ndarray
+    files: list[dict[str, str]] = field(default_factory=list)
+    info: dict = field(default_factory=dict)
+
+    def field(self, k: int):
+        """The FE displacement field of state k (from the unloaded beam), specimen frame."""
+        return three_point_bending_field(float(self.loads_N[k]), self.beam)
+
+    def project(self, side: str, X_world_mm) -> np.ndarray:
+        if side not in SIDES:
+            raise ValueError(f"camera must be 'left' or 'right', got {side!r}")
+        return project_points(self.specs[side], *self.camera_poses[side], X_world_mm)
+
+    def points_of_interest(self, pixels_left_ref) -> tuple[np.ndarray, np.ndarray]:
+        """Truth of DIC points defined at pixels of the left reference image (state 0).
+
+        Returns
+        -------
+        X_specimen_mm : (N, 3) material points on the front face (NaN where the pixel misses it)
+        X_world_mm : (K, N, 3) their true positions in every state, world (= left camera) frame
+        """
+        o, d = pixel_rays(self.specs["left"], *self.camera_poses["left"], pixels_left_ref)
+        _, X0 = intersect_deformed_front_face(o, d, self.specimen, *self.pose, self.field(0))
+        R, t = self.pose
+        X_world = np.full((len(self.loads_N), len(X0), 3), np.nan)
+        ok = np.all(np.isfinite(X0), axis=1)
+        for k in range(len(self.loads_N)):
+            X_world[k, ok] = (X0[ok] + self.field(k).displacement_mm(X0[ok])) @ np.asarray(R).T + t
+        return X0, X_world
+
+    def strain_truth(self, X_specimen_mm, k: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Exact surface Green-Lagrange strain of state k relative to the reference state at material points.
+
+        With the face tangents ``T = [e_x, e_y]`` of the unloaded beam, the reference state's tangents are
+        ``a = F_0 T`` and state k's ``b = F_k T`` (``F = I + grad u``). In the orthonormal basis
+        ``Q = a L^-1`` of the reference surface (``a^T a = L^T L``, Cholesky: Q's first vector along the
+        deformed x fibre) the strain is ``E = (L^-T b^T b L^-1 - I) / 2``.
+
+        Returns
+        -------
+        E : (N, 2, 2) strain in the basis Q
+        basis_world : (N, 3, 2) Q in the world (= left camera) frame
+        area_change : (N,) relative area change ``sqrt(det(b^T b) / det(a^T a)) - 1``
+        """
+        X = np.asarray(X_specimen_mm, float)
+        n = len(X)
+        E = np.full((n, 2, 2), np.nan)
+        Q_world = np.full((n, 3, 2), np.nan)
+        area = np.full(n, np.nan)
+        ok = np.all(np.isfinite(X), axis=1)
+        if not ok.any():
+            return E, Q_world, area
+        T = np.eye(3)[:, :2]
+        a = (np.eye(3) + self.field(0).gradient(X[ok])) @ T
+        b = (np.eye(3) + self.field(k).gradient(X[ok])) @ T
+        G = np.einsum("nki,nkj->nij", a, a)
+        C = np.einsum("nki,nkj->nij", b, b)
+        L = np.transpose(np.linalg.cholesky(G), (0, 2, 1))          # G = L^T L, L upper triangular
+        L_inv = np.linalg.inv(L)
+        E[ok] = 0.5 * (np.transpose(L_inv, (0, 2, 1)) @ C @ L_inv - np.eye(2))
+        Q_world[ok] = np.asarray(self.pose[0]) @ (a @ L_inv)
+        area[ok] = np.sqrt(np.linalg.det(C) / np.linalg.det(G)) - 1.0
+        return E, Q_world, area
+
+
+# ------------------------------------------------------------------------------------------------------------
+def bending_specs(rig: StereoRig, lens: str, focus_world_mm, f_number: float | None = None) -> dict[str, SensorSpec]:
+    """The two cameras as rendered: the rig's thin lenses (``scheimpflug`` rig), or a lens focused on the face."""
+    if lens not in LENSES:
+        raise ValueError(f"lens must be one of {LENSES}, got {lens!r}")
+    specs = {}
+    for side in SIDES:
+        spec = sensor_spec_for(rig, side)
+        if lens == "thin":
+            if rig.lens_focal_length_mm is not None and f_number in (None, rig.f_number):
+                spec = spec.with_(**rig.thin_lens(side))
+            else:
+                N = DEFAULT_F_NUMBER if f_number is None else float(f_number)
+                F = focal_length_for_focus_mm(spec, *rig.pose(side), np.asarray(focus_world_mm, float))
+                spec = spec.with_(lens="thin", focal_length_mm=float(F), f_number=N)
+        specs[side] = spec
+    return specs
+
+
+def bending_truth(rig: StereoRig, *, lens: str = "thin", f_number: float | None = None, loads_N=BENDING_LOADS_N,
+                  specimen: BendingSpecimen | None = None, beam: ThreePointBending | None = None,
+                  seed: int = 0) -> BendingTruth:
+    """Set up the scene (no rendering): specimen, FE model, cameras; checks that both cameras see the face."""
+    loads = np.asarray(loads_N, dtype=float).reshape(-1)
+    if loads.size < 2 or not np.all(np.isfinite(loads)) or np.any(loads < 0):
+        raise ValueError(f"loads_N must hold a reference and at least one load state (finite, >= 0 N), got {loads_N!r}")
+    R0, t0 = specimen_reference_pose(rig)
+    if specimen is None:
+        specimen = BendingSpecimen.for_pixel_size(float(np.linalg.norm(t0)) / rig.left.fx, seed=seed)
+    beam = ThreePointBending() if beam is None else beam
+    if (beam.length_mm, beam.height_mm, beam.thickness_mm) != (specimen.length_mm, specimen.height_mm,
+                                                             specimen.thickness_mm):
+        raise ValueError(f"the FE beam ({beam.length_mm} x {beam.height_mm} x {beam.thickness_mm} mm) and the "
+                         f"specimen ({specimen.length_mm} x {specimen.height_mm} x {specimen.thickness_mm} mm) differ")
+    specs = bending_specs(rig, lens, t0, f_number)
+    check_specimen_in_view(specimen, [(R0, t0)], specs, rig)
+    info: dict = {"lens": lens}
+    if lens == "thin":
+        blur = {side: face_blur_px(specimen, (R0, t0), specs[side], *rig.pose(side)) for side in SIDES}
+        angle = {side: focus_plane_angle_deg(specs[side], *rig.pose(side), R0[:, 2]) for side in SIDES}
+        info.update(f_number=float(specs["left"].f_number), max_defocus_blur_px=blur, focus_plane_to_face_deg=angle,
+                    focal_length_mm={side: specs[side].focal_length_mm for side in SIDES})
+        worst = max(blur, key=blur.get)
+        if blur[worst] > BLUR_WARNING_PX:
+            warnings.warn(f"thin lens: the front face is blurred by up to {blur[worst]:.1f} px in the {worst} image "
+                          f"(its plane of sharp focus is {angle[worst]:.0f} deg from the face)", stacklevel=2)
+    return BendingTruth(specimen, beam, specs, {side: rig.pose(side) for side in SIDES}, (R0, t0), loads, [], info)
+
+
+def render_bending(rig: StereoRig | str, out_dir, scale: float = 1.0, lens: str = "thin", spp: int = 64,
+                   seed: int = 0, noise_grey: float = 1.0, loads_N=BENDING_LOADS_N, *, f_number: float | None = None,
+                   specimen: BendingSpecimen | None = None, beam: ThreePointBending | None = None,
+                   progress: bool = True) -> BendingTruth:
+    """Render every load state in both cameras: ``left_KK.png``, ``right_KK.png`` and ``truth.json``.
+
+    Parameters
+    ----------
+    rig : StereoRig or a rig name ("scheimpflug", "paper"), built at ``scale``
+    lens : "thin" (the rig's lenses; for a rig without lenses one focused on the face centre) or "pinhole"
+    spp : samples per pixel; seed : seeds speckle, sampler and noise; noise_grey : read noise (8-bit grey)
+    loads_N : state 0 is the reference (default: 20 N, then 200 -> 2000 N by 200 N)
+    """
+    rig_scale = None
+    if isinstance(rig, str):
+        rig, rig_scale = get_rig(rig, scale), float(scale)
+    elif scale != 1.0:
+        raise ValueError("scale applies to a rig given by name; a StereoRig is already scaled")
+    if spp < 1:
+        raise ValueError(f"spp must be >= 1, got {spp}")
+    noise = SensorNoise(read_noise_grey=noise_grey, bit_depth=8)
+    truth = bending_truth(rig, lens=lens, f_number=f_number, loads_N=loads_N, specimen=specimen, beam=beam, seed=seed)
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    texture = truth.specimen.texture()
+    digits = max(2, len(str(len(truth.loads_N) - 1)))
+    files = []
+    for k in tqdm(range(len(truth.loads_N)), desc=f"rendering bending ({lens})", disable=not progress):
+        surfaces = truth.specimen.surfaces(*truth.pose, texture=texture, displacement_mm=truth.field(k))
+        names = {}
+        for c, side in enumerate(SIDES):
+            image_seed = seed * 100003 + 2 * k + c        # one seed per image: Monte-Carlo noise is pixel-locked
+            result = render_view(truth.specs[side], *truth.camera_poses[side], surfaces, spp=spp, seed=image_seed,
+                                 exposure_grey=EXPOSURE_GREY[8])
+            names[side] = f"{side}_{k:0{digits}d}.png"
+            image = to_image_dtype(noise.apply(result.image_grey, seed=image_seed), 8)
+            if not cv2.imwrite(str(out_dir / names[side]), image):
+                raise OSError(f"could not write {out_dir / names[side]}")
+        files.append(names)
+    truth.files = files
+    truth.info.update(render={"spp": int(spp), "seed": int(seed), "bit_depth": 8, "read_noise_grey": float(noise_grey),
+                              "exposure_grey": EXPOSURE_GREY[8]},
+                      rig={"name": rig.name, "scale": rig_scale,
+                           "R_right_from_left": np.asarray(rig.R_right_from_left).tolist(),
+                           "T_right_from_left_mm": np.asarray(rig.T_right_from_left_mm).tolist(),
+                           "pixel_pitch_mm": rig.pixel_pitch_mm,
+                           "intrinsics": {side: rig.camera(side).to_dict() for side in SIDES}})
+    tmp = out_dir / "truth.json.tmp"
+    tmp.write_text(json.dumps(_truth_to_json(truth), indent=1))
+    tmp.replace(out_dir / "truth.json")                     # the truth appears whole, after every image
+    return truth
+
+
+def _truth_to_json(truth: BendingTruth) -> dict:
+    R, t = truth.pose
+    return {
+        "about": "Ground truth of the rendered three-point bending test. World frame = left camera frame (OpenCV "
+                 "axes, mm). Specimen pose X_world = R_world_from_specimen @ (X + u_k(X)) + t_world_from_specimen_mm "
+                 "with u_k the finite-element displacement at load k (specimen frame: origin at the front-face "
+                 "centre, x along the length, y along the height pointing down, z into the material). The FE model "
+                 "is in 'beam' (scenes.fields.ThreePointBending); it is re-solved deterministically on loading. "
+                 "Truth of a DIC point: the left reference pixel's chief ray meets the face deformed by the "
+                 "reference load at X0; in state k it is at R (X0 + u_k(X0)) + t "
+                 "(workbench.experiments.bending_scenes.load_bending_truth(...).points_of_interest).",
+        "specimen": {"type": "BendingSpecimen", **truth.specimen.to_dict()},
+        "beam": {"type": "ThreePointBending", **truth.beam.to_dict()},
+        "cameras": {side: {"sensor_spec": truth.specs[side].to_dict(),
+                           "R_cam_from_world": np.asarray(truth.camera_poses[side][0]).tolist(),
+                           "t_cam_from_world_mm": np.asarray(truth.camera_poses[side][1]).tolist()}
+                    for side in SIDES},
+        "R_world_from_specimen": np.asarray(R).tolist(), "t_world_from_specimen_mm": np.asarray(t).tolist(),
+        "states": [{"index": k, "load_N": float(p), "files": truth.files[k] if truth.files else None}
+                   for k, p in enumerate(truth.loads_N)],
+        **truth.info,
+    }
+
+
+def load_bending_truth(out_dir) -> BendingTruth:
+    """Read ``truth.json`` written by :func:`render_bending` back into a :class:`BendingTruth`."""
+    path = Path(out_dir) / "truth.json"
+    if not path.is_file():
+        raise FileNotFoundError(f"no truth.json in {out_dir}")
+    d = json.loads(path.read_text())
+    specimen = BendingSpecimen(**{k: v for k, v in d["specimen"].items() if k != "type"})
+    beam = ThreePointBending(**{k: v for k, v in d["beam"].items() if k != "type"})
+    specs = {side: SensorSpec(**d["cameras"][side]["sensor_spec"]) for side in SIDES}
+    camera_poses = {side: (np.array(d["cameras"][side]["R_cam_from_world"]),
+                           np.array(d["cameras"][side]["t_cam_from_world_mm"])) for side in SIDES}
+    info = {k: v for k, v in d.items() if k not in ("about", "specimen", "beam", "cameras", "R_world_from_specimen",
+                                                    "t_world_from_specimen_mm", "states")}
+    return BendingTruth(specimen, beam, specs, camera_poses,
+                        (np.array(d["R_world_from_specimen"]), np.array(d["t_world_from_specimen_mm"])),
+                        np.array([s["load_N"] for s in d["states"]]), [s["files"] for s in d["states"]], info)
