@@ -72,3 +72,17 @@ def stage_poses(R_world_from_specimen, t_world_from_specimen_mm, states_mm,
     R = np.asarray(R_world_from_specimen, dtype=float)
     t = np.asarray(t_world_from_specimen_mm, dtype=float).reshape(3)
     return [(R.copy(), t + d) for d in stage_displacements_mm(states_mm, direction_world)]
+
+
+def stage_fields(R_world_from_specimen, states_mm, direction_world=STAGE_UP_WORLD) -> list:
+    """The stage motion of every state as a displacement field of the specimen (:mod:`scenes.fields`).
+
+    A stage translation ``d`` (world frame) moves every material point by ``R^T d`` in the specimen frame:
+    a :class:`scenes.fields.RigidMotionField` with ``R = I``. ``specimen.surfaces(R, t0, displacement_mm=field)``
+    and :func:`scenes.truth.material_point_positions` with these fields give the same positions as the
+    translated poses of :func:`stage_poses`.
+    """
+    from scenes.fields import RigidMotionField
+
+    R = np.asarray(R_world_from_specimen, dtype=float)
+    return [RigidMotionField(np.eye(3), R.T @ d) for d in stage_displacements_mm(states_mm, direction_world)]
