@@ -11,6 +11,11 @@ the initial first-order shape; the second-order shape function absorbs the rest.
 
 Displacements are ``U = X_def - X_ref`` in the left camera frame (mm); ``D = |U|`` is the paper's displacement
 magnitude.
+
+Sanity: matches that do not fit the calibration are not returned as plausible numbers. A reference shape or a
+state whose median triangulation residual exceeds :data:`MAX_MEDIAN_RESIDUAL_PX` (left and right images
+swapped, cameras in the wrong order, a calibration of another rig), or whose measured fraction is below
+:data:`MIN_MEASURED_FRACTION`, or with no point triangulated at all, raises :class:`StereoQualityError`.
 """
 from __future__ import annotations
 
@@ -31,8 +36,103 @@ from measurement.stereo import triangulate
 STEREO_DIC_SETTINGS = DICSettings(subset_size=65, step=5, order=2, min_zncc=0.8)
 
 
+#: A reference shape or state whose median triangulation residual exceeds this (px) is refused. Right matches
+#: triangulate to a few hundredths of a pixel; swapped left/right images gave 1.45 px.
+MAX_MEDIAN_RESIDUAL_PX = 0.5
+#: A reference shape (of its POIs) or a state (of the reference's triangulated points) measuring less than this
+#: fraction is refused.
+MIN_MEASURED_FRACTION = 0.5
+
+
 class StereoMatchError(ValueError):
     """A stereo match could not be started (no features, no seeds)."""
+
+
+class StereoQualityError(StereoMatchError):
+    """The matches do not fit the calibration (median triangulation residual too large) or too few points were
+    measured. ``quality`` holds the figures."""
+
+    def __init__(self, message: str, quality: "StereoQuality"):
+        super().__init__(message)
+        self.quality = quality
+
+
+@dataclass(frozen=True)
+class StereoQuality:
+    """Triangulation figures of a reference shape or a state.
+
+    Attributes
+    ----------
+    points : int
+        Points that could be measured: every POI for the reference shape, the reference's triangulated points
+        for a deformed state.
+    measured : int
+        Points measured (matched and triangulated).
+    median_residual_px, p95_residual_px : float
+        Median and 95th percentile of the triangulation residual over the measured points, px (NaN if none).
+    """
+
+    points: int
+    measured: int
+    median_residual_px: float
+    p95_residual_px: float
+
+    @property
+    def measured_fraction(self) -> float:
+        return self.measured / self.points if self.points else 0.0
+
+
+def stereo_quality(residual_px: np.ndarray, measured: np.ndarray, points: int | None = None) -> StereoQuality:
+    """:class:`StereoQuality` of per-point residuals over the ``measured`` mask (of ``points``, default all)."""
+    measured = np.asarray(measured, dtype=bool)
+    r = np.asarray(residual_px, dtype=np.float64)[measured]
+    r = r[np.isfinite(r)]
+    median, p95 = (float(np.median(r)), float(np.percentile(r, 95))) if r.size else (float("nan"), float("nan"))
+    return StereoQuality(int(measured.size if points is None else points), int(measured.sum()), median, p95)
+
+
+def check_thresholds(max_median_residual_px: float | None, min_measured_fraction: float | None) -> None:
+    """ValueError unless the residual threshold is a finite number > 0 and the fraction one in [0, 1] (or None)."""
+    if max_median_residual_px is not None and not (np.isfinite(max_median_residual_px) and max_median_residual_px > 0):
+        raise ValueError(f"max_median_residual_px must be a finite number > 0 (or None), "
+                         f"got {max_median_residual_px!r}")
+    if min_measured_fraction is not None and not (np.isfinite(min_measured_fraction)
+                                                  and 0 <= min_measured_fraction <= 1):
+        raise ValueError(f"min_measured_fraction must be in [0, 1] (or None), got {min_measured_fraction!r}")
+
+
+def check_stereo_quality(quality: StereoQuality, what: str, *,
+                         max_median_residual_px: float | None = MAX_MEDIAN_RESIDUAL_PX,
+                         min_measured_fraction: float | None = MIN_MEASURED_FRACTION) -> None:
+    """Raise :class:`StereoQualityError` saying what is likely wrong unless ``quality`` passes both thresholds.
+
+    No point measured always fails; ``None`` switches a threshold off.
+    """
+    check_thresholds(max_median_residual_px, min_measured_fraction)
+    problems = []
+    if quality.measured == 0:
+        problems.append(f"no point of {quality.points} was triangulated")
+    elif min_measured_fraction is not None and quality.measured_fraction < min_measured_fraction:
+        problems.append(f"only {quality.measured} of {quality.points} points ({quality.measured_fraction:.0%}) were "
+                        f"measured, fewer than {min_measured_fraction:.0%}")
+    residual_bad = (quality.measured > 0 and max_median_residual_px is not None
+                    and not quality.median_residual_px <= max_median_residual_px)
+    if residual_bad:
+        problems.append(f"the median triangulation residual is {quality.median_residual_px:.3g} px (95th percentile "
+                        f"{quality.p95_residual_px:.3g} px), above {max_median_residual_px:g} px")
+    if not problems:
+        return
+    if residual_bad:
+        likely = ("the matched pixels do not fit the calibration's geometry: the left and right images are likely "
+                  "swapped, or the calibration's cameras are in the wrong order, or the calibration belongs to "
+                  "another rig or set-up (it must be of these cameras, in this position)")
+    elif quality.measured == 0 or quality.measured_fraction < 0.05:
+        likely = ("the images may not show the same specimen (left and right swapped, images of another rig or "
+                  "state, a wrong calibration), or the region of interest misses the specimen")
+    else:
+        likely = ("the region of interest may reach beyond the specimen or the part both cameras see (limit it "
+                  "to the specimen), or the images are swapped, or the calibration is wrong")
+    raise StereoQualityError(f"{what}: {'; '.join(problems)}. Likely cause: {likely}.", quality)
 
 
 @dataclass(frozen=True)
@@ -50,13 +150,11 @@ class FeatureMatches:
 
 
 def _as_uint8(image: np.ndarray) -> np.ndarray:
-    image = np.asarray(image)
-    if image.dtype == np.uint8:
-        return image
-    finite = np.isfinite(image)
-    low, high = np.percentile(image[finite], [0.1, 99.9]) if finite.any() else (0.0, 1.0)
-    scaled = (np.where(finite, image, low) - low) * (255.0 / max(high - low, 1e-12))
-    return np.clip(scaled, 0, 255).astype(np.uint8)
+    """SIFT's 8-bit input: the one conversion of :func:`measurement.image_io.to_uint8` (scaled by the data's
+    0.1-99.9 percentiles, so 12-bit data in 16 bits and floats in [0, 1] keep 256 levels; uint8 as it is)."""
+    from measurement.image_io import to_uint8
+
+    return to_uint8(image)
 
 
 @dataclass(frozen=True)
@@ -210,6 +308,7 @@ class StereoShape:
     grid: PoiGrid = field(repr=False)
     reference: PreparedImage | None = field(default=None, repr=False)    # left reference, prepared once
     reference_features: Features | None = field(default=None, repr=False)
+    quality: StereoQuality | None = None      # residual statistics and measured fraction
 
 
 @dataclass
@@ -241,6 +340,7 @@ class StereoState:
     status: np.ndarray
     left_match: DICResult
     right_match: DICResult
+    quality: StereoQuality | None = None      # residual statistics, measured fraction of the reference's points
 
     @property
     def valid(self) -> np.ndarray:
@@ -260,10 +360,21 @@ def _check_rig_images(left: ScheimpflugCamera, right: ScheimpflugCamera, images:
 
 def reference_shape(left: ScheimpflugCamera, right: ScheimpflugCamera, R_right_from_left, T_right_from_left_mm,
                     left_ref: np.ndarray, right_ref: np.ndarray, settings: DICSettings = STEREO_DIC_SETTINGS, *,
-                    roi=None, mask=None) -> StereoShape:
-    """Match left-ref -> right-ref (feature seeds) and triangulate the reference shape."""
+                    roi=None, mask=None, max_median_residual_px: float | None = MAX_MEDIAN_RESIDUAL_PX,
+                    min_measured_fraction: float | None = MIN_MEASURED_FRACTION) -> StereoShape:
+    """Match left-ref -> right-ref (feature seeds) and triangulate the reference shape.
+
+    Raises
+    ------
+    StereoMatchError
+        No features or seeds; :class:`StereoQualityError` when the shape fails :func:`check_stereo_quality`
+        (median residual above ``max_median_residual_px``, fewer than ``min_measured_fraction`` of the POIs
+        triangulated, or none).
+    """
+    check_thresholds(max_median_residual_px, min_measured_fraction)
     _check_rig_images(left, right, {"left reference": left_ref, "right reference": right_ref})
-    grid = poi_grid(np.asarray(left_ref).shape, settings.subset_size, settings.step, roi=roi, mask=mask)
+    grid = poi_grid(np.asarray(left_ref).shape, settings.subset_size, settings.step, roi=roi, mask=mask,
+                    interpolation=settings.interpolation)
     prepared = prepare_image(left_ref, settings.interpolation, True, "left reference", settings.lowpass_sigma_px)
     features = detect_features(left_ref)
     match = correlate_with_features(prepared, right_ref, settings, grid, name="right reference",
@@ -271,14 +382,30 @@ def reference_shape(left: ScheimpflugCamera, right: ScheimpflugCamera, R_right_f
     pixels_left = np.column_stack([match.x, match.y]).astype(np.float64)
     pixels_right = pixels_left + np.column_stack([match.u, match.v])
     tri = triangulate(left, right, R_right_from_left, T_right_from_left_mm, pixels_left, pixels_right)
-    return StereoShape(match.x, match.y, match, tri.X_left_mm, tri.reprojection_error_px, tri.valid & match.converged,
-                       grid, prepared, features)
+    valid = tri.valid & match.converged
+    quality = stereo_quality(tri.reprojection_error_px, valid)
+    check_stereo_quality(quality, "reference shape (left reference -> right reference)",
+                         max_median_residual_px=max_median_residual_px, min_measured_fraction=min_measured_fraction)
+    return StereoShape(match.x, match.y, match, tri.X_left_mm, tri.reprojection_error_px, valid, grid, prepared,
+                       features, quality)
 
 
 def measure_state(left: ScheimpflugCamera, right: ScheimpflugCamera, R_right_from_left, T_right_from_left_mm,
                   shape: StereoShape, left_ref: np.ndarray, left_def: np.ndarray, right_def: np.ndarray,
-                  settings: DICSettings = STEREO_DIC_SETTINGS) -> StereoState:
-    """Match left-ref -> left-def and left-ref -> right-def, triangulate, and difference with the reference."""
+                  settings: DICSettings = STEREO_DIC_SETTINGS, *,
+                  max_median_residual_px: float | None = MAX_MEDIAN_RESIDUAL_PX,
+                  min_measured_fraction: float | None = MIN_MEASURED_FRACTION,
+                  name: str = "deformed state") -> StereoState:
+    """Match left-ref -> left-def and left-ref -> right-def, triangulate, and difference with the reference.
+
+    Raises
+    ------
+    StereoMatchError
+        No features or seeds; :class:`StereoQualityError` (naming ``name``) when the state fails
+        :func:`check_stereo_quality`: its median residual is above ``max_median_residual_px`` or it measured
+        fewer than ``min_measured_fraction`` of the reference's triangulated points (or none).
+    """
+    check_thresholds(max_median_residual_px, min_measured_fraction)
     _check_rig_images(left, right, {"left deformed": left_def, "right deformed": right_def})
     reference = shape.reference if shape.reference is not None else left_ref
     features = shape.reference_features if shape.reference_features is not None else detect_features(left_ref)
@@ -303,5 +430,9 @@ def measure_state(left: ScheimpflugCamera, right: ScheimpflugCamera, R_right_fro
     X = np.where(ok[:, None], tri.X_left_mm, np.nan)
     U = X - shape.X_mm
     zncc = np.fmin(np.fmin(shape.right_match.zncc, left_match.zncc), right_match.zncc)
-    return StereoState(X, U, np.linalg.norm(U, axis=1), np.where(ok, tri.reprojection_error_px, np.nan),
-                       np.where(ok, zncc, np.nan), status, left_match, right_match)
+    residual = np.where(ok, tri.reprojection_error_px, np.nan)
+    quality = stereo_quality(residual, ok, int(np.count_nonzero(shape.valid)))
+    check_stereo_quality(quality, name, max_median_residual_px=max_median_residual_px,
+                         min_measured_fraction=min_measured_fraction)
+    return StereoState(X, U, np.linalg.norm(U, axis=1), residual, np.where(ok, zncc, np.nan), status, left_match,
+                       right_match, quality)

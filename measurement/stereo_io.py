@@ -1,4 +1,7 @@
-"""Writing stereo-DIC results: one CSV and one legacy-VTK point cloud (for ParaView) per state."""
+"""Writing stereo-DIC results: one CSV and one legacy-VTK point cloud (for ParaView) per state.
+
+Every file is written atomically (:mod:`measurement.files`): whole or not at all, write errors name the file.
+"""
 from __future__ import annotations
 
 import csv
@@ -7,6 +10,7 @@ from pathlib import Path
 import numpy as np
 
 from measurement.dic import Status
+from measurement.files import atomic_write_text, atomic_writer
 from measurement.stereo_dic import StereoShape, StereoState
 
 CSV_COLUMNS = ("x", "y", "X", "Y", "Z", "U", "V", "W", "D", "zncc", "residual", "status", "status_name")
@@ -20,7 +24,6 @@ def write_state_csv(path: str | Path, shape: StereoShape, state: StereoState | N
     """Per-point CSV: left reference pixel (x, y), position X, Y, Z and displacement U, V, W, D (left camera
     frame, mm), ZNCC, triangulation residual (px) and status. ``state=None`` writes the reference shape."""
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
     if state is None:
         X = shape.X_mm
         U = np.zeros_like(X)
@@ -32,7 +35,7 @@ def write_state_csv(path: str | Path, shape: StereoShape, state: StereoState | N
     else:
         X, U, zncc, residual, status = state.X_mm, state.U_mm, state.zncc, state.residual_px, state.status
     D = np.linalg.norm(U, axis=1)
-    with path.open("w", newline="") as handle:
+    with atomic_writer(path, "w", newline="") as handle:
         writer = csv.writer(handle)
         writer.writerow(CSV_COLUMNS)
         for k in range(shape.x.size):
@@ -45,7 +48,6 @@ def write_state_csv(path: str | Path, shape: StereoShape, state: StereoState | N
 def write_state_vtk(path: str | Path, shape: StereoShape, state: StereoState | None = None) -> Path:
     """Legacy-VTK POLYDATA of the valid points with displacement (vector), D, ZNCC and residual (scalars)."""
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
     if state is None:
         valid = shape.valid
         X, U = shape.X_mm[valid], np.zeros((int(valid.sum()), 3))
@@ -63,5 +65,30 @@ def write_state_vtk(path: str | Path, shape: StereoShape, state: StereoState | N
     for name, values in (("D_mm", np.linalg.norm(U, axis=1)), ("zncc", zncc), ("residual_px", residual),
                          ("x_px", shape.x[valid]), ("y_px", shape.y[valid])):
         lines += [f"SCALARS {name} double 1", "LOOKUP_TABLE default"] + [f"{v:.9g}" for v in values]
-    path.write_text("\n".join(lines) + "\n")
+    atomic_write_text(path, "\n".join(lines) + "\n")
     return path
+
+
+SUMMARY_COLUMNS = ("state", "left", "right", "result", "points", "measured", "measured_fraction",
+                   "median_residual_px", "p95_residual_px", "mean_D_mm", "error")
+
+
+def write_state_summary(path: str | Path, rows: list[dict]) -> Path:
+    """One row per state (the reference first): files, measured / measurable points, median and 95th percentile
+    of the triangulation residual (px), mean D (mm), and the error of a state that was refused.
+
+    ``rows``: dicts with ``state``, ``left``, ``right``, ``quality`` (:class:`StereoQuality` or None) and
+    optionally ``mean_D_mm`` and ``error``.
+    """
+    with atomic_writer(Path(path), "w", newline="") as handle:
+        writer = csv.writer(handle)
+        writer.writerow(SUMMARY_COLUMNS)
+        for row in rows:
+            q = row.get("quality")
+            writer.writerow([row["state"], row["left"], row["right"], "skipped" if row.get("error") else "measured",
+                             "" if q is None else q.points, "" if q is None else q.measured,
+                             "" if q is None else _fmt(q.measured_fraction),
+                             "" if q is None else _fmt(q.median_residual_px),
+                             "" if q is None else _fmt(q.p95_residual_px),
+                             _fmt(row["mean_D_mm"]) if "mean_D_mm" in row else "", row.get("error", "")])
+    return Path(path)

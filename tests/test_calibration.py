@@ -202,9 +202,12 @@ def test_single_camera_tilt_and_principal_point_within_their_uncertainty(rig, mo
     # The well-determined ones too (fx, fy: sub-px uncertainty at fx ~ 1e4 px; distortion).
     for name in ("fx", "fy", "k1", "k2", "p1", "p2"):
         assert abs(getattr(mono_cal.camera, name) - getattr(truth, name)) <= 4 * mono_cal.sigma[name], name
-    # And the estimates are useful, not merely "within a huge sigma": tilt to a small fraction of a degree.
-    assert abs(mono_cal.camera.alpha_deg - truth.alpha_deg) < 0.5
-    assert abs(mono_cal.camera.beta_deg - truth.beta_deg) < 1.0
+    # And the estimates are useful, not merely "within a huge sigma": alpha to a tenth of a degree, beta (the
+    # large tilt, worse determined on planar targets) to half a degree. Measured with these 12 poses over noise
+    # seeds 22-29: |alpha error| 0.008-0.067 deg (sigma 0.02-0.06), |beta error| 0.003-0.43 deg (sigma
+    # 0.18-0.27); this data set (seed 22) gives 0.008 and 0.003 deg, the bounds hold for any of those seeds.
+    assert abs(mono_cal.camera.alpha_deg - truth.alpha_deg) < 0.1
+    assert abs(mono_cal.camera.beta_deg - truth.beta_deg) < 0.5
 
 
 def test_pinhole_model_cannot_describe_a_scheimpflug_camera(rig, mono_data, mono_cal):

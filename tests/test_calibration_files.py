@@ -1,14 +1,26 @@
-"""Calibration files and the ``workbench calibrate`` command on image files, including bad input."""
+"""Calibration files and the ``workbench calibrate`` command on image files, including bad input.
+
+The loaders validate every key (:mod:`measurement.schema`): each defect of issue 10 class 1 has a rejection test
+below that names the file and the key; the writers are atomic and refuse to write a file that would not load.
+Property-based fuzzing of the same loaders: ``tests/test_fuzz_calibration_loaders.py``.
+"""
 import contextlib
+import dataclasses
+import errno
 import json
+import os
+import re
 import shutil
+from pathlib import Path
 
 import cv2
 import numpy as np
 import pytest
 
-from measurement.calibration.io import CalibratedRig, export_opencv_yaml, load_calibration, save_calibration
-from measurement.calibration.stepwise import calibrate_stereo
+from measurement.calibration.io import (CalibratedRig, export_opencv_yaml, load_calibration, load_opencv_yaml,
+                                        save_calibration)
+from measurement.calibration.stepwise import MODELS, calibrate_stereo
+from measurement.schema import FileFormatError
 from measurement.calibration.detection import board_points_mm
 from workbench.cli import main
 
@@ -65,6 +77,310 @@ def test_bad_calibration_files(tmp_path):
     bad.write_text('{"format": "something else"}')
     with pytest.raises(ValueError, match="unknown format"):
         load_calibration(bad)
+
+
+# ------------------------------------------------------------------------------------------------------------
+# Issue 10, class 1: every defect of a calibration file is a FileFormatError naming the file and the key
+# ------------------------------------------------------------------------------------------------------------
+def _with_model(cal, model: str):
+    """``cal`` relabelled as ``model`` with cameras that model can describe (pinhole: no tilt)."""
+    tilt_model = {"rmm": "rmm", "opencv-tilt": "opencv", "pinhole": "rmm"}[model]
+
+    def cam(c):
+        changes = {"tilt_model": tilt_model}
+        if model == "pinhole":
+            changes.update(alpha_deg=0.0, beta_deg=0.0)
+        return dataclasses.replace(c, camera=dataclasses.replace(c.camera, **changes))
+
+    return dataclasses.replace(cal, model=model, left=cam(cal.left), right=cam(cal.right))
+
+
+@pytest.mark.parametrize("model", MODELS)
+@pytest.mark.parametrize("suffix", [".json", ".yaml"])
+def test_round_trip_of_every_model_gives_the_identical_rig(synthetic_calibration, tmp_path, model, suffix):
+    cal = _with_model(synthetic_calibration, model)
+    path = tmp_path / f"calib{suffix}"
+    (save_calibration if suffix == ".json" else export_opencv_yaml)(cal, path)
+    rig = load_calibration(path)
+    assert rig.model == model
+    assert rig.left == cal.left.camera and rig.right == cal.right.camera        # every field, exactly
+    assert np.array_equal(rig.R_right_from_left, cal.R_right_from_left)
+    assert np.array_equal(rig.T_right_from_left_mm, cal.T_right_from_left_mm)
+    assert rig.T_right_from_left_mm.shape == (3,)
+    # and the exported YAML of the loaded rig is the same text (nothing lost on the way)
+    if suffix == ".yaml":
+        again = tmp_path / "again.yaml"
+        export_opencv_yaml(rig, again)
+        assert again.read_text() == path.read_text()
+
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+@pytest.mark.parametrize("path", sorted(str(p.relative_to(REPO)) for p in REPO.glob("reports/*/calibration*.json")))
+def test_committed_calibration_files_pass_the_validation(path):
+    """The calibrations in reports/ (YAML written by an older OpenCV) load, JSON and YAML giving the same rig."""
+    rig = load_calibration(REPO / path)
+    twin = load_opencv_yaml((REPO / path).with_suffix(".yaml"))
+    assert rig == dataclasses.replace(twin, R_right_from_left=rig.R_right_from_left,
+                                      T_right_from_left_mm=rig.T_right_from_left_mm)
+    assert np.array_equal(rig.R_right_from_left, twin.R_right_from_left)
+    assert np.array_equal(rig.T_right_from_left_mm, twin.T_right_from_left_mm)
+
+
+@pytest.fixture(scope="module")
+def valid_yaml(synthetic_calibration, tmp_path_factory) -> str:
+    path = tmp_path_factory.mktemp("yaml") / "calib.yaml"
+    export_opencv_yaml(synthetic_calibration, path)
+    return path.read_text()
+
+
+def _yaml_scalar(text: str, key: str, value: str | None) -> str:
+    """``text`` with the top-level scalar ``key`` set to ``value`` (None: the line removed)."""
+    pattern = re.compile(rf"^{re.escape(key)}: .*\n", re.M)
+    assert len(pattern.findall(text)) == 1, key
+    return pattern.sub("" if value is None else f"{key}: {value}\n", text)
+
+
+def _yaml_matrix(text: str, key: str, data: list | None) -> str:
+    """``text`` with the data of matrix ``key`` replaced (None: the whole matrix removed)."""
+    pattern = re.compile(rf"^{re.escape(key)}: !!opencv-matrix\n(   .*\n|       .*\n)+", re.M)
+    match = pattern.search(text)
+    assert match, key
+    if data is None:
+        return text[:match.start()] + text[match.end():]
+    block = re.sub(r"data: \[[^\]]*\]", "data: [ " + ", ".join(map(repr, data)) + " ]", match.group(0))
+    return text[:match.start()] + block + text[match.end():]
+
+
+def _rotation_z(deg):
+    c, s = np.cos(np.radians(deg)), np.sin(np.radians(deg))
+    return [c, -s, 0.0, s, c, 0.0, 0.0, 0.0, 1.0]
+
+
+YAML_DEFECTS = {
+    # the defects named in the issue
+    "missing left_k1 (was read as k1 = 0)": (lambda t: _yaml_scalar(t, "left_k1", None),
+                                             r"key 'left_k1': required key is missing"),
+    "text value (was read as 1.8e308)": (lambda t: _yaml_scalar(t, "left_k1", "abc"),
+                                         r"key 'left_k1': must be a number, got a string \('abc'\)"),
+    "0-byte file (was a SystemError)": (lambda t: "", r"calibration file is empty"),
+    "garbage (was a SystemError)": (lambda t: "this is not yaml at all", r"is not an OpenCV FileStorage YAML file"),
+    "fx = 1e300": (lambda t: _yaml_scalar(t, "left_fx", "1e300"), r"key 'left_fx': must be in \(0, 1e\+06\) px"),
+    "NaN": (lambda t: _yaml_scalar(t, "right_fy", ".nan"), r"key 'right_fy': must be a finite number, got nan"),
+    "infinity": (lambda t: _yaml_scalar(t, "right_cx", "-.inf"), r"key 'right_cx': must be a finite number"),
+    # the rest of the schema
+    "binary bytes": (lambda t: "\x00\x01\x02 calib", r"calibration file contains NUL bytes: it is not a text file"),
+    "truncated": (lambda t: t[:len(t) // 2], r"(is not an OpenCV|key ')"),
+    "top level a sequence": (lambda t: "%YAML:1.0\n---\n- 1\n- 2\n", r"the file's top level must be a mapping \(JSON object / YAML map\), got a list of 2"),
+    "missing format": (lambda t: _yaml_scalar(t, "format", None), r"key 'format': required key is missing"),
+    "other format": (lambda t: _yaml_scalar(t, "format", "something/2"), r"key 'format': unknown format 'something/2'"),
+    "unknown model": (lambda t: _yaml_scalar(t, "model", "fisheye"), r"key 'model': must be one of 'rmm'"),
+    "numeric model": (lambda t: _yaml_scalar(t, "model", "3"), r"key 'model': must be a string, got a number"),
+    "missing tilt model": (lambda t: _yaml_scalar(t, "left_tilt_model", None),
+                           r"key 'left_tilt_model': required key is missing"),
+    "tilt model contradicting model": (lambda t: _yaml_scalar(t, "left_tilt_model", "opencv"),
+                                       r"key 'left_tilt_model': tilt model 'opencv' contradicts the file's model"),
+    "tilt beyond the model's range": (lambda t: _yaml_scalar(t, "left_beta_deg", "-50.0"),
+                                      r"key 'left_beta_deg': must be in \(-45, 45\) deg"),
+    "distortion out of range": (lambda t: _yaml_scalar(t, "right_k2", "5000.0"), r"key 'right_k2': must be in \(-1000, 1000\)"),
+    "negative focal length": (lambda t: _yaml_scalar(t, "left_fx", "-10.0"), r"key 'left_fx': must be in \(0, 1e\+06\) px"),
+    "image width zero": (lambda t: _yaml_scalar(t, "image_width", "0"), r"key 'image_width': must be an integer in \[1, "),
+    "image width fractional": (lambda t: _yaml_scalar(t, "image_width", "1228.5"),
+                               r"key 'image_width': must be an integer, got a number \(1228.5\)"),
+    "missing image height": (lambda t: _yaml_scalar(t, "image_height", None), r"key 'image_height': required key is missing"),
+    "missing R": (lambda t: _yaml_matrix(t, "R", None), r"key 'R': required key is missing"),
+    "R not a rotation": (lambda t: _yaml_matrix(t, "R", [1.0, 0, 0, 0, 1, 0, 0, 0, 1.01]), r"key 'R': must be a rotation"),
+    "R a reflection": (lambda t: _yaml_matrix(t, "R", [1.0, 0, 0, 0, 1, 0, 0, 0, -1]), r"key 'R': must be a proper rotation"),
+    "R with a text entry": (lambda t: _yaml_matrix(t, "R", ["x"] + _rotation_z(3)[1:]),
+                            r"key 'R.data\[0\]': must be a number, got a string \('x'\)"),
+    "T zero": (lambda t: _yaml_matrix(t, "T", [0.0, 0.0, 0.0]), r"key 'T': the stereo translation's length must be in \(0, "),
+    "T too short": (lambda t: _yaml_matrix(t, "T", [1.0, 2.0]), r"key 'T.data': must be a list of 3 entries, got 2"),
+    "K1 edited alone": (lambda t: _yaml_matrix(t, "K1", [9000.0, 0, 600, 0, 9000, 500, 0, 0, 1]),
+                        r"key 'K1': disagrees with the left_\* parameters"),
+    "D2 with a k3": (lambda t: _yaml_matrix(t, "D2", [0.0] * 4 + [0.5] + [0.0] * 9), r"key 'D2': disagrees"),
+}
+
+
+@pytest.mark.parametrize("case", list(YAML_DEFECTS))
+def test_yaml_defects_are_refused_naming_file_and_key(valid_yaml, tmp_path, case):
+    edit, message = YAML_DEFECTS[case]
+    path = tmp_path / "calib.yaml"
+    path.write_text(edit(valid_yaml))
+    with pytest.raises(FileFormatError, match=re.escape(str(path)) + ": " + message):
+        load_calibration(path)
+
+
+def test_yaml_defect_tests_start_from_a_valid_file(valid_yaml, tmp_path):
+    path = tmp_path / "calib.yaml"
+    path.write_text(valid_yaml)
+    assert load_opencv_yaml(path).model == "rmm"
+
+
+@pytest.fixture(scope="module")
+def valid_json(synthetic_calibration, tmp_path_factory) -> dict:
+    path = tmp_path_factory.mktemp("json") / "calib.json"
+    save_calibration(synthetic_calibration, path)
+    return json.loads(path.read_text())
+
+
+def _edit(d: dict, key: str, value=...):
+    """``d`` (a copy) with the dotted ``key`` set to ``value`` (``...``: removed)."""
+    d = json.loads(json.dumps(d))
+    *parents, last = key.split(".")
+    node = d
+    for k in parents:
+        node = node[int(k)] if isinstance(node, list) else node[k]
+    if value is ...:
+        del node[last]
+    elif isinstance(node, list):
+        node[int(last)] = value
+    else:
+        node[last] = value
+    return d
+
+
+JSON_DEFECTS = {
+    # the defects named in the issue (KeyError / AttributeError tracebacks before; fx = 1e300 accepted)
+    "top level a list": (lambda d: [d], r"the file's top level must be a mapping \(JSON object / YAML map\), got a list"),
+    "top level null": (lambda d: None, r"the file's top level must be a mapping .*, got null"),
+    "missing stereo": (lambda d: _edit(d, "stereo"), r"key 'stereo': required key is missing"),
+    "fx = 1e300": (lambda d: _edit(d, "left.intrinsics.fx", 1e300), r"key 'left.intrinsics.fx': must be in \(0, 1e\+06\) px"),
+    "NaN": (lambda d: _edit(d, "left.intrinsics.k1", float("nan")), r"key 'left.intrinsics.k1': must be a finite number, got nan"),
+    "string number": (lambda d: _edit(d, "right.intrinsics.fx", "5000"),
+                      r"key 'right.intrinsics.fx': must be a number, got a string \('5000'\)"),
+    # wrong nested types
+    "stereo a list": (lambda d: _edit(d, "stereo", [1, 2]), r"key 'stereo': it must be a mapping"),
+    "left a string": (lambda d: _edit(d, "left", "camera"), r"key 'left': it must be a mapping"),
+    "intrinsics null": (lambda d: _edit(d, "left.intrinsics", None), r"key 'left.intrinsics': it must be a mapping .*got null"),
+    "boolean number": (lambda d: _edit(d, "left.intrinsics.cx", True), r"key 'left.intrinsics.cx': must be a number, got a boolean"),
+    "huge integer": (lambda d: _edit(d, "left.intrinsics.cy", 10 ** 400),
+                     r"key 'left.intrinsics.cy': must be a finite number, got an integer beyond"),
+    # the rest of the schema
+    "missing fx": (lambda d: _edit(d, "left.intrinsics.fx"), r"key 'left.intrinsics.fx': required key is missing"),
+    "unknown intrinsic": (lambda d: _edit(d, "left.intrinsics.k3", 0.1), r"key 'left.intrinsics': unknown key\(s\) 'k3'"),
+    "missing format": (lambda d: _edit(d, "format"), r"key 'format': required key is missing"),
+    "unknown model": (lambda d: _edit(d, "model", "fisheye"), r"key 'model': must be one of"),
+    "missing tilt model": (lambda d: _edit(d, "right.tilt_model"), r"key 'right.tilt_model': required key is missing"),
+    "pinhole with a tilt": (lambda d: _edit(d, "model", "pinhole"), r"key 'left.intrinsics.alpha_deg': must be 0 for"),
+    "tilt beyond the model's range": (lambda d: _edit(d, "right.intrinsics.beta_deg", 45.0),
+                                      r"key 'right.intrinsics.beta_deg': must be in \(-45, 45\) deg"),
+    "width zero": (lambda d: _edit(d, "left.width", 0), r"key 'left.width': must be an integer in \[1, 1000000\], got 0"),
+    "width a string": (lambda d: _edit(d, "left.width", "1228"), r"key 'left.width': must be an integer, got a string"),
+    "width fractional": (lambda d: _edit(d, "right.height", 1029.5), r"key 'right.height': must be an integer"),
+    "image size disagreeing": (lambda d: _edit(d, "image_size_px", [100, 100]), r"key 'image_size_px': 100 x 100 disagrees"),
+    "R not 3 x 3": (lambda d: _edit(d, "stereo.R_right_from_left", [[1, 0, 0], [0, 1, 0]]),
+                    r"key 'stereo.R_right_from_left': must be a list of 3 entries, got 2"),
+    "R with a string": (lambda d: _edit(d, "stereo.R_right_from_left.1", [0, "1", 0]),
+                        r"key 'stereo.R_right_from_left\[1\]\[1\]': must be a number, got a string"),
+    "R not a rotation": (lambda d: _edit(d, "stereo.R_right_from_left", [[1, 0, 0], [0, 1, 0], [0, 0, 1.01]]),
+                         r"key 'stereo.R_right_from_left': must be a rotation matrix"),
+    "R a reflection": (lambda d: _edit(d, "stereo.R_right_from_left", [[-1, 0, 0], [0, 1, 0], [0, 0, 1]]),
+                       r"key 'stereo.R_right_from_left': must be a proper rotation"),
+    "rvec disagreeing with R": (lambda d: _edit(d, "stereo.rvec_right_from_left", [0.0, 0.1, 0.0]),
+                                r"key 'stereo.rvec_right_from_left': disagrees with R_right_from_left"),
+    "T zero": (lambda d: _edit(d, "stereo.T_right_from_left_mm", [0, 0, 0]),
+               r"key 'stereo.T_right_from_left_mm': the stereo translation's length must be in \(0, 1e\+06\) mm"),
+    "T infinite": (lambda d: _edit(d, "stereo.T_right_from_left_mm.0", float("inf")),
+                   r"key 'stereo.T_right_from_left_mm\[0\]': must be a finite number, got inf"),
+    "T missing": (lambda d: _edit(d, "stereo.T_right_from_left_mm"), r"key 'stereo.T_right_from_left_mm': required key"),
+}
+
+
+@pytest.mark.parametrize("case", list(JSON_DEFECTS))
+def test_json_defects_are_refused_naming_file_and_key(valid_json, tmp_path, case):
+    edit, message = JSON_DEFECTS[case]
+    path = tmp_path / "calib.json"
+    path.write_text(json.dumps(edit(valid_json)))
+    with pytest.raises(FileFormatError, match=re.escape(str(path)) + ": " + message):
+        load_calibration(path)
+
+
+def test_json_defect_tests_start_from_a_valid_file(valid_json, tmp_path):
+    path = tmp_path / "calib.json"
+    path.write_text(json.dumps(valid_json))
+    assert load_calibration(path).model == "rmm"
+
+
+@pytest.mark.parametrize("content, message", [
+    (b"", r"calibration file is empty"),
+    (b"  \n", r"calibration file is empty"),
+    (b"\xff\xfe{}", r"calibration file is not UTF-8 text \(byte 0\)"),
+    (b"{\"format\": 1" + b"[" * 100_000, r"is not (valid JSON|a usable JSON file)"),
+    (b"1" * 5000, r"is not a usable JSON file: .*digits"),
+])
+def test_unreadable_json_is_refused_naming_the_file(tmp_path, content, message):
+    path = tmp_path / "calib.json"
+    path.write_bytes(content)
+    with pytest.raises(FileFormatError, match=re.escape(str(path)) + ": " + message):
+        load_calibration(path)
+
+
+def test_deeply_nested_json_is_refused_naming_the_file(tmp_path):
+    path = tmp_path / "calib.json"
+    path.write_text('{"format": ' + "[" * 100_000)
+    with pytest.raises(FileFormatError, match=re.escape(str(path)) + ": is not a usable JSON file: nested too deeply"):
+        load_calibration(path)
+
+
+@pytest.mark.parametrize("text, message", [
+    ("a: " + "[" * 100_000, r"has 100001 of the characters '\[\{-:\?' \(more than 10000\): too deeply nested"),
+    ("a:\n  " + "- " * 60_000 + "1\n", r"has 60001 of the characters"),
+    ("a: 1\n" + "#" * (1 << 20), r"calibration file is 1048581 bytes, more than the 1048576"),
+])
+def test_yaml_that_would_crash_opencv_is_refused_before_parsing(tmp_path, text, message):
+    """OpenCV's YAML parser overflows its stack (SIGSEGV) on ~20 000+ nesting levels: refused before it runs.
+
+    Run in a subprocess, so that a regression shows as a failure and not as a crashed test session.
+    """
+    import subprocess
+    import sys
+
+    path = tmp_path / "calib.yaml"
+    path.write_text(text)
+    code = ("import sys\nfrom measurement.calibration.io import load_opencv_yaml\nfrom measurement.schema import "
+            "FileFormatError\ntry:\n    load_opencv_yaml(sys.argv[1])\nexcept FileFormatError as err:\n"
+            "    print(err)\n")
+    run = subprocess.run([sys.executable, "-c", code, str(path)], capture_output=True, text=True, timeout=120,
+                         cwd=REPO)
+    assert run.returncode == 0, f"the loader crashed (exit {run.returncode}): {run.stderr[-500:]}"
+    assert re.match(re.escape(str(path)) + ": " + message, run.stdout), run.stdout
+
+
+def test_a_folder_is_not_a_calibration_file(tmp_path):
+    with pytest.raises(FileFormatError, match=re.escape(str(tmp_path)) + ": calibration file is not a regular file"):
+        load_calibration(tmp_path)
+
+
+# --- the writers: atomic, and never a file that would not load ----------------------------------------------
+@pytest.mark.parametrize("suffix", [".json", ".yaml"])
+def test_writers_keep_the_old_file_when_the_disk_is_full(synthetic_calibration, tmp_path, monkeypatch, suffix):
+    """A write error (ENOSPC at fsync) names the file and leaves the previous file whole, no temporary file."""
+    path = tmp_path / f"calib{suffix}"
+    path.write_text("previous content")
+
+    def full_disk(fd):
+        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+
+    monkeypatch.setattr(os, "fsync", full_disk)
+    write = save_calibration if suffix == ".json" else export_opencv_yaml
+    with pytest.raises(OSError, match=re.escape(f"cannot write {path}") + ": No space left on device"):
+        write(synthetic_calibration, path)
+    assert path.read_text() == "previous content"
+    assert [p.name for p in tmp_path.iterdir()] == [path.name]
+
+
+@pytest.mark.parametrize("suffix", [".json", ".yaml"])
+def test_writers_refuse_a_calibration_the_loader_would_refuse(synthetic_calibration, tmp_path, suffix):
+    bad = dataclasses.replace(synthetic_calibration, left=dataclasses.replace(
+        synthetic_calibration.left, camera=dataclasses.replace(synthetic_calibration.left.camera, k1=5000.0)))
+    path = tmp_path / f"calib{suffix}"
+    write = save_calibration if suffix == ".json" else export_opencv_yaml
+    key = "left.intrinsics.k1" if suffix == ".json" else "left_k1"
+    with pytest.raises(FileFormatError, match=re.escape(f"{path}: key '{key}': must be in (-1000, 1000)")
+                       + r".*refusing to write a file that would not load; nothing written"):
+        write(bad, path)
+    assert not path.exists() and list(tmp_path.iterdir()) == []
 
 
 @pytest.fixture(scope="module")

@@ -135,7 +135,7 @@ def test_naive_opencv_tau_differs_from_paper_model_when_both_angles_nonzero():
     naive = _opencv_project(X, camera.K, dist)
     diff = np.linalg.norm(naive - corners, axis=-1)
     print(f"\n[opencv naive tau] Table 1 left, corner differences: {np.array2string(diff, precision=3)} px")
-    assert np.all(diff > 0.1)
+    assert np.all(diff > 1.0)              # measured 1.13, 1.60, 1.18, 1.63 px
     # ... while the principal ray is unaffected by either parametrisation (both keep it at (cx, cy))
     centre = _opencv_project(np.array([[0.0, 0.0, 400.0]]), camera.K, dist)
     np.testing.assert_allclose(centre[0], [camera.cx, camera.cy], atol=1e-9)

@@ -11,8 +11,9 @@ import numpy as np
 import pytest
 from scipy import ndimage
 
-from measurement.dic import DICSettings, Status, correlate, poi_grid
+from measurement.dic import DICSettings, PoiGrid, Status, correlate, poi_grid
 from measurement.dic.bspline import interpolate, prefilter
+from measurement.dic.grid import interpolation_margin_px
 from measurement.dic.shape_functions import compose_inverse, warp_points
 from scenes.noise import apply_sensor_noise
 from scenes.synthetic_images import (HomogeneousStrain, QuadraticField, Rotation, Translation, extent_for_shape,
@@ -276,6 +277,65 @@ def _deformed_subset_inside(result, field, half, shape, margin=3.0):
     return inside
 
 
+# --- the default grid -----------------------------------------------------------------------------------
+
+@pytest.fixture(scope="module")
+def static_pair():
+    """Two noise draws (2 grey) of one speckle image: zero displacement, IC-GN estimates of a few 0.01 px."""
+    reference, same = fourier_shifted_pair((120, 150), 3.0, (0.0, 0.0), seed=3)
+    return (apply_sensor_noise(reference, read_noise_grey=2.0, bit_depth=None, seed=1),
+            apply_sensor_noise(same, read_noise_grey=2.0, bit_depth=None, seed=2))
+
+
+@pytest.mark.parametrize("interpolation", ["biquintic", "bicubic"])
+@pytest.mark.parametrize("order", [1, 2])
+def test_default_grid_has_no_point_out_of_the_image_at_zero_displacement(static_pair, interpolation, order):
+    """The default grid used to start M px from the border, where the interpolant's support leaves the image:
+    44 of 520 points (8.5 %) were OUT_OF_IMAGE here. Now every point converges, and the grid starts exactly at
+    the margin of the interpolant in use (biquintic 3 px, bicubic 2 px)."""
+    reference, deformed = static_pair
+    result = correlate(reference, deformed, DICSettings(subset_size=21, step=5, order=order,
+                                                        interpolation=interpolation))
+    assert not (result.status == Status.OUT_OF_IMAGE).any(), result.status_counts()
+    assert result.converged.all(), result.status_counts()
+    border = 10 + interpolation_margin_px(interpolation)
+    assert result.x.min() == border and result.y.min() == border
+    assert 150 - 1 - border - 5 < result.x.max() <= 150 - 1 - border
+    assert 120 - 1 - border - 5 < result.y.max() <= 120 - 1 - border
+    assert np.abs(result.u).max() < 0.1 and np.abs(result.v).max() < 0.1
+
+
+@pytest.mark.parametrize("interpolation", ["biquintic", "bicubic"])
+def test_default_grid_margin_is_the_least_that_keeps_sub_pixel_motion_in_the_image(static_pair, interpolation):
+    """``poi_grid``'s default border is M + 3 px (biquintic) or M + 2 px (bicubic). IC-GN (one iteration from a
+    guess 0.9 px outwards) accepts a subset on that border and refuses, OUT_OF_IMAGE, the same move one pixel
+    closer to the border: on each of the four sides."""
+    reference, deformed = static_pair
+    rows, cols = reference.shape
+    margin = interpolation_margin_px(interpolation)
+    assert margin == {"biquintic": 3, "bicubic": 2}[interpolation]
+    border = 10 + margin
+    grid = poi_grid(reference.shape, 21, 5, interpolation=interpolation)
+    last_x, last_y = cols - 1 - border, rows - 1 - border
+    assert grid.x[0, 0] == border and grid.y[0, 0] == border
+    assert last_x - 5 < grid.x[0, -1] <= last_x and last_y - 5 < grid.y[-1, 0] <= last_y
+    cases = [(border, 60, -0.9, 0.0), (border - 1, 60, -0.9, 0.0), (last_x, 60, 0.9, 0.0), (last_x + 1, 60, 0.9, 0.0),
+             (75, border, 0.0, -0.9), (75, border - 1, 0.0, -0.9), (75, last_y, 0.0, 0.9), (75, last_y + 1, 0.0, 0.9)]
+    xs = np.array([[c[0] for c in cases]], dtype=np.int64)
+    ys = np.array([[c[1] for c in cases]], dtype=np.int64)
+    probe = PoiGrid(xs, ys, np.ones(xs.shape, dtype=bool), 21, 5)
+    result = correlate(reference, deformed, DICSettings(subset_size=21, step=5, interpolation=interpolation,
+                                                        max_iterations=1),
+                       grid=probe, initial_parameters=np.array([c[2:] for c in cases]))
+    np.testing.assert_array_equal(result.status == Status.OUT_OF_IMAGE, [False, True] * 4)
+
+
+def test_default_grid_on_a_too_small_image_says_so_without_inventing_a_roi():
+    with pytest.raises(ValueError, match=r"the 30 x 20 px image is too small for a 21 px subset: .* needs 13 px"):
+        poi_grid((20, 30), 21, 5)
+    assert poi_grid((27, 27), 21, 5).count == 1
+
+
 # --- bad input and flags ----------------------------------------------------------------------------------
 
 @pytest.fixture(scope="module")
@@ -308,7 +368,8 @@ def test_flags_out_of_image_low_texture_and_nan(pair):
     deformed = deformed.copy()
     reference[:, 140:] = 100.0      # untextured band
     deformed[:, 140:] = 100.0
-    deformed[60:70, 60:70] = np.nan
+    nan_block = (slice(60, 70), slice(60, 70))
+    deformed[nan_block] = np.nan
     settings = DICSettings(subset_size=21, step=10)
     result = correlate(reference, deformed, settings, roi=(0, 0, 200, 160))
     status = result.status
@@ -324,15 +385,56 @@ def test_flags_out_of_image_low_texture_and_nan(pair):
     flat = (result.x - 10 >= 140) & (result.x + 10 < 200) & (result.y >= 10) & (result.y + 10 < 160)
     assert flat.sum() > 10
     assert (status[flat] == Status.LOW_TEXTURE).all()
-    # the NaN block flags the subsets whose deformed subset touches it
-    touched = (np.abs(result.x + 1.7 - 65) <= 10 + 5 + 12) & (np.abs(result.y - 0.6 - 65) <= 10 + 5 + 12)
-    assert (status[status == Status.INVALID_IMAGE] == Status.INVALID_IMAGE).all()
-    assert touched[status == Status.INVALID_IMAGE].all()
+    # The NaN block: every pixel within the documented reach of a NaN (L1 distance <= degree + 8 = 13 px,
+    # spline support plus prefilter decay) is invalid, and a subset sampling an invalid pixel is INVALID_IMAGE.
+    # So: no point is INVALID_IMAGE beyond that reach, and no point within it converges or gets another
+    # status. (Those whose subsets hold the NaN pixels themselves are surrounded by invalid points and come
+    # out NOT_REACHED: see test_subsets_holding_nan_pixels_say_invalid_image.)
+    near, _ = _deformed_subsets_near_nan(result, (1.7, -0.6), nan_block, half=10)
+    invalid = status == Status.INVALID_IMAGE
+    assert invalid.sum() >= 10
+    assert near[invalid].all()
+    assert np.isin(status[near], [Status.INVALID_IMAGE, Status.NOT_REACHED]).all(), result.status_counts()
     # (the flat band does not move between the images, so only subsets clear of it are tested for accuracy)
     clear = ~failed & (result.x + 10 < 137)
     assert clear.sum() > 20
     assert np.abs(result.u[clear] - 1.7).max() < 5e-3
     assert np.abs(result.v[clear] + 0.6).max() < 5e-3
+
+
+def _deformed_subsets_near_nan(result, shift_px, nan_block, half, reach_px=13):
+    """Per point: does its deformed subset (translated by ``shift_px``) sample a pixel within ``reach_px``
+    (L1) of the NaN block, and does it sample the NaN block itself. IC-GN reads the invalid mask at the
+    truncated sample position, the pixel whose cell holds it."""
+    shape = (160, 200)
+    nan = np.zeros(shape, dtype=bool)
+    nan[nan_block] = True
+    distance = ndimage.distance_transform_cdt(~nan, metric="taxicab")
+    offsets = np.arange(-half, half + 1)
+    near = np.zeros(result.x.size, dtype=bool)
+    holds = np.zeros(result.x.size, dtype=bool)
+    for k in range(result.x.size):
+        cols = np.floor(result.x[k] + offsets + shift_px[0]).astype(int)
+        rows = np.floor(result.y[k] + offsets + shift_px[1]).astype(int)
+        if cols.min() < 0 or rows.min() < 0 or cols.max() >= shape[1] or rows.max() >= shape[0]:
+            continue
+        window = distance[np.ix_(rows, cols)]
+        near[k] = (window <= reach_px).any()
+        holds[k] = (window == 0).any()
+    return near, holds
+
+
+@pytest.mark.xfail(strict=True, reason="points whose deformed subsets hold NaN pixels are enclosed by INVALID_IMAGE "
+                                       "points, so propagation never reaches them and they say NOT_REACHED")
+def test_subsets_holding_nan_pixels_say_invalid_image(pair):
+    reference, deformed = pair
+    deformed = deformed.copy()
+    nan_block = (slice(60, 70), slice(60, 70))
+    deformed[nan_block] = np.nan
+    result = correlate(reference, deformed, DICSettings(subset_size=21, step=10), roi=(0, 0, 200, 160))
+    _, holds = _deformed_subsets_near_nan(result, (1.7, -0.6), nan_block, half=10)
+    assert holds.sum() >= 4
+    assert (result.status[holds] == Status.INVALID_IMAGE).all(), result.status[holds]
 
 
 def test_deterministic_and_independent_of_thread_count(pair):
@@ -410,9 +512,14 @@ def test_bias_falls_with_speckle_size_and_the_size_conventions_agree():
 
 @pytest.mark.parametrize("interpolation", ["biquintic", "bicubic"])
 def test_subsets_at_the_image_edge_match_the_same_subsets_inside_a_larger_image(speckle, interpolation):
-    """Sampling reads whole vectors past the end of a run where that is safe (see icgn.LANES): subsets touching
-    the last rows and columns must give what the same subsets give when the image goes on beyond them. A 6 %
-    stretch and a 4 deg turn cut every warped row into short runs."""
+    """Sampling reads whole vectors past the end of a run where that is safe (see icgn.LANES), and not in the
+    last coefficient rows: subsets whose interpolation support reaches the last row and column of an image
+    must give what the same subsets give when the image goes on beyond them. The larger image is the crop
+    mirrored about its last row and column, the boundary the spline prefilter assumes, so both images have the
+    same spline coefficients on the crop and the results must agree to rounding. A 6 % stretch and a 4 deg turn
+    cut every warped row into short runs."""
+    from measurement.dic.bspline import degree_of, support_margin
+
     field = HomogeneousStrain(0.06, -0.02, 0.0, centre_xy_px=(128, 128))
     turn = Rotation(4.0, centre_xy_px=(128, 128))
 
@@ -425,18 +532,31 @@ def test_subsets_at_the_image_edge_match_the_same_subsets_inside_a_larger_image(
     big_ref = speckle.render_reference((256, 256))
     big_def = speckle.render_deformed((256, 256), combined)
     settings = DICSettings(subset_size=21, step=6, order=2, interpolation=interpolation)
-    # The crop ends 14 px right of / below the last POI: the deformed subsets reach its last rows and columns.
-    crop = (slice(0, 196), slice(0, 196))
     roi = (150, 150, 183, 183)
-    guess = lambda x, y: combined(x, y)  # noqa: E731
-    at_edge = correlate(big_ref[crop], big_def[crop], settings, roi=roi, initial_parameters=guess)
-    inside = correlate(big_ref, big_def, settings, roi=roi, initial_parameters=guess)
-    ok = at_edge.converged
-    assert ok.sum() >= 16
-    # the spline of a crop differs from the full image's near the crop's border (mirror boundary), so compare
-    # each against the truth rather than against each other
-    for result in (at_edge, inside):
-        u_true, v_true = combined(result.x[ok].astype(float), result.y[ok].astype(float))
-        assert np.abs(result.u[ok] - u_true).max() < 0.02
-        assert np.abs(result.v[ok] - v_true).max() < 0.02
-    assert np.isfinite(at_edge.zncc[ok]).all() and (at_edge.zncc[ok] > 0.99).all()
+    # The deformed subsets reach x, y < 193; the crop ends where their spline support takes its last row and
+    # column (196 px for the quintic's 3 coefficients beyond the cell, 195 for the cubic's 2).
+    high = support_margin(degree_of(interpolation))[1]
+    size = 193 + high
+    crop_ref, crop_def = big_ref[:size, :size], big_def[:size, :size]
+    at_edge = correlate(crop_ref, crop_def, settings, roi=roi, initial_parameters=combined)
+    mirrored = [np.pad(image, ((0, size - 1), (0, size - 1)), mode="reflect") for image in (crop_ref, crop_def)]
+    inside = correlate(*mirrored, settings, roi=roi, initial_parameters=combined)
+    assert at_edge.converged.all(), at_edge.status_counts()
+    assert inside.converged.all(), inside.status_counts()
+    # the premise: the support of the converged subsets reaches the crop's last row and last column
+    offsets = np.arange(-10.0, 11.0)
+    dx, dy = np.meshgrid(offsets, offsets)
+    reach = np.zeros(2, dtype=int)
+    for x, y in zip(at_edge.x, at_edge.y):
+        u, v = combined(x + dx, y + dy)
+        reach = np.maximum(reach, [int(np.floor((x + dx + u).max())) + high, int(np.floor((y + dy + v).max())) + high])
+    np.testing.assert_array_equal(reach, [size - 1, size - 1])
+    # the same subsets give the same numbers (rounding only: ~1e-15 px measured)
+    np.testing.assert_array_equal(at_edge.iterations, inside.iterations)
+    assert np.abs(at_edge.parameters - inside.parameters).max() < 1e-10
+    assert np.abs(at_edge.zncc - inside.zncc).max() < 1e-12
+    # and they are right
+    u_true, v_true = combined(at_edge.x.astype(float), at_edge.y.astype(float))
+    assert np.abs(at_edge.u - u_true).max() < 0.02
+    assert np.abs(at_edge.v - v_true).max() < 0.02
+    assert (at_edge.zncc > 0.99).all()

@@ -56,8 +56,10 @@ def test_stage_states_out_and_back():
     np.testing.assert_array_equal(s, [0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 9, 8, 7, 6, 5, 4, 3, 2, 1, 0])
     np.testing.assert_allclose(stage_states_mm(1.0, 0.1)[10], 1.0, rtol=0, atol=1e-15)
     assert len(stage_states_mm(2.0, 0.5)) == 9
-    for bad in [(10, 3), (0, 1), (-1, 1), (10, 0), (np.nan, 1)]:
-        with pytest.raises(ValueError):
+    for bad, message in [((10, 3), "whole number of steps"), ((0, 1), "positive and finite, got 0 and 1"),
+                         ((-1, 1), "positive and finite, got -1 and 1"), ((10, 0), "positive and finite, got 10 and 0"),
+                         ((np.nan, 1), "positive and finite, got nan and 1")]:
+        with pytest.raises(ValueError, match=message):
             stage_states_mm(*bad)
     # "up" in the left image is -y of the left camera (= world) frame; poses are pure translations.
     np.testing.assert_array_equal(STAGE_UP_WORLD, [0, -1, 0])
@@ -66,7 +68,7 @@ def test_stage_states_out_and_back():
     poses = stage_poses(R0, t0, [0.0, 4.0], direction_world=[0, 0, 2])
     np.testing.assert_allclose(poses[1][1], [1, 2, 304])
     np.testing.assert_array_equal(poses[1][0], R0)
-    with pytest.raises(ValueError):
+    with pytest.raises(ValueError, match="stage direction must be a non-zero 3-vector"):
         stage_poses(R0, t0, [1.0], direction_world=[0, 0, 0])
 
 
@@ -88,9 +90,13 @@ def test_bending_specimen_solid_and_validation():
     assert np.all(front.vertices_mm[:, 2] == 0) and front.uv.min() == 0 and front.uv.max() == 1
     np.testing.assert_allclose(np.diff(np.unique(front.vertices_mm[:, 0])), 1.0)     # 1 mm grid (120 cells)
     np.testing.assert_allclose(np.diff(np.unique(front.vertices_mm[:, 1])), 1.0)
-    for bad in [dict(length_mm=-1), dict(height_mm=0), dict(thickness_mm=np.nan), dict(texel_mm=0.1, speckle_mm=0.1),
-                dict(side_grey=2.0), dict(grid_mm=0)]:
-        with pytest.raises(ValueError):
+    for bad, message in [(dict(length_mm=-1), "length_mm must be positive and finite, got -1"),
+                         (dict(height_mm=0), "height_mm must be positive and finite, got 0"),
+                         (dict(thickness_mm=np.nan), "thickness_mm must be positive and finite, got nan"),
+                         (dict(texel_mm=0.1, speckle_mm=0.1), "under 2 texels"),
+                         (dict(side_grey=2.0), r"side_grey must be in \[0, 1\], got 2.0"),
+                         (dict(grid_mm=0), "grid_mm must be positive and finite, got 0")]:
+        with pytest.raises(ValueError, match=message):
             BendingSpecimen(**bad)
     with pytest.raises(ValueError, match="too large"):
         BendingSpecimen(texel_mm=0.001)
@@ -170,7 +176,7 @@ def test_points_of_interest_follow_the_stage(scene):
     # displacement fields act in the specimen frame, before the pose
     X_def = material_point_positions(X_s[:2], truth.poses, [None, lambda X: np.tile([0.0, 0.0, 1.0], (len(X), 1))])
     np.testing.assert_allclose(X_def[1] - X_w[1, :2], np.tile(truth.poses[1][0][:, 2], (2, 1)), atol=1e-12)
-    with pytest.raises(ValueError):
+    with pytest.raises(ValueError, match="reference_state 5 is not one of the"):
         points_of_interest_truth(truth.specs["left"], *truth.camera_poses["left"], px, truth.specimen,
                                  truth.poses, reference_state=5)
 
@@ -334,5 +340,8 @@ def test_bad_input(rig, tmp_path):
         render_rigid_motion(rig, tmp_path, scale=0.5)
     with pytest.raises(ValueError, match="states"):
         rigid_motion_truth(rig, lens="pinhole", states_mm=[0.0, np.nan])
-    with pytest.raises(ValueError):
-        render_rigid_motion("paper", tmp_path, scale=SCALE, specimen=BendingSpecimen(length_mm=-80))
+    # a specimen taller than the view is refused before anything is rendered or written
+    with pytest.raises(SpecimenOutOfViewError, match="front face leaves the left image"):
+        render_rigid_motion("paper", tmp_path / "tall", scale=SCALE,
+                            specimen=BendingSpecimen(height_mm=80, texel_mm=0.05, speckle_mm=0.5))
+    assert not (tmp_path / "tall").exists()

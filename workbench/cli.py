@@ -1,6 +1,6 @@
 """The ``workbench`` command line.
 
-    workbench render checkerboard --rig paper --views N --seed S [--scale F] [--spp N] --out DIR
+    workbench render checkerboard --rig paper --views N --seed S [--scale F] [--spp N] [--overwrite] --out DIR
     workbench reproduce agreement [--rig paper] [--views N] [--scale F] [--spp N] [--seed S] --out DIR
     workbench reproduce depth-of-field [--scale F] [--f-number N] [--spp N] --out DIR
     workbench reproduce calibration [--scale F] [--seed S] [--spp N] --out DIR
@@ -9,34 +9,271 @@
     workbench reproduce dic-accuracy --out DIR
     workbench reproduce rigid-motion [--scale F] [--calib rendered|true|FILE] [--lens thin|pinhole] --out DIR
     workbench stereo --calib calib.json --left-ref L0 --right-ref R0 --left GLOB --right GLOB [--roi ...]
-                     [--subset 65] [--step 5] --out DIR
+                     [--subset 65] [--step 5] [--max-residual-px 0.5] [--min-measured-fraction 0.5]
+                     [--overwrite] --out DIR
     workbench dic REF DEF [--roi X0,Y0,X1,Y1] [--subset 33] [--step 8] [--order 1|2]
                   [--interp biquintic|bicubic] [--seed-point X,Y] --out points.csv
+
+Every option is checked when it is parsed (numbers finite and in range, sizes odd, ...) and every input file
+before the first long computation; errors are one line naming the option or file, exit code 2. Files are
+written atomically (:mod:`measurement.files`); dataset folders carry a manifest (:mod:`workbench.manifest`).
 """
 from __future__ import annotations
 
 import argparse
-import json
+import contextlib
+import math
 import sys
+import warnings
 from pathlib import Path
 
 import numpy as np
 
+#: Renders derive 32-bit sampler seeds as ``seed * 100003 + 2 * view + camera``: seeds up to this fit.
+MAX_SEED = (2 ** 32 - 1) // 100003 - 1
+#: Most views one checkerboard render may hold (keeps the derived sampler seeds in 32 bits).
+MAX_VIEWS = 10_000
+
+
+# ------------------------------------------------------------------------------------------------------------
+# Option parsers: argparse prints "argument --NAME: <message>" and exits 2 for an ArgumentTypeError.
+def _number(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+    if not math.isfinite(value):
+        raise argparse.ArgumentTypeError(f"must be a finite number, got {text!r}")
+    return value
+
+
+def _integer(text: str) -> int:
+    try:
+        return int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
+
 
 def _positive_int(text: str) -> int:
-    value = int(text)
+    value = _integer(text)
     if value < 1:
         raise argparse.ArgumentTypeError(f"must be >= 1, got {value}")
     return value
 
 
+def _views(text: str) -> int:
+    value = _positive_int(text)
+    if value > MAX_VIEWS:
+        raise argparse.ArgumentTypeError(f"must be at most {MAX_VIEWS}, got {value}")
+    return value
+
+
+def _seed(text: str) -> int:
+    value = _integer(text)
+    if not 0 <= value <= MAX_SEED:
+        raise argparse.ArgumentTypeError(f"must be an integer in [0, {MAX_SEED}] (renders derive 32-bit sampler "
+                                         f"seeds from it), got {value}")
+    return value
+
+
+def _subset(text: str) -> int:
+    value = _integer(text)
+    if value < 5 or value % 2 == 0:
+        raise argparse.ArgumentTypeError(f"must be odd and >= 5 (a subset is 2M + 1 pixels wide), got {value}")
+    return value
+
+
+def _positive_float(text: str) -> float:
+    value = _number(text)
+    if value <= 0:
+        raise argparse.ArgumentTypeError(f"must be > 0, got {text!r}")
+    return value
+
+
+def _non_negative_float(text: str) -> float:
+    value = _number(text)
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"must be >= 0, got {text!r}")
+    return value
+
+
+def _zncc(text: str) -> float:
+    value = _number(text)
+    if not -1.0 <= value <= 1.0:
+        raise argparse.ArgumentTypeError(f"a ZNCC threshold must be in [-1, 1], got {text!r}")
+    return value
+
+
+def _fraction(text: str) -> float:
+    value = _number(text)
+    if not 0.0 <= value <= 1.0:
+        raise argparse.ArgumentTypeError(f"must be a fraction in [0, 1], got {text!r}")
+    return value
+
+
 def _scale(text: str) -> float:
-    value = float(text)
+    value = _number(text)
     if not 0 < value <= 4:
         raise argparse.ArgumentTypeError(f"scale must be in (0, 4], got {value}")
     return value
 
 
+def _angle_deg(text: str) -> float:
+    value = _number(text)
+    if not -80.0 <= value <= 80.0:
+        raise argparse.ArgumentTypeError(f"must be an angle in [-80, 80] deg, got {text!r}")
+    return value
+
+
+def _pattern(text: str) -> tuple[int, int]:
+    try:
+        a, b = (int(v) for v in text.lower().split("x"))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"pattern must look like 11x8, got {text!r}") from None
+    if a < 2 or b < 2:
+        raise argparse.ArgumentTypeError(f"pattern needs at least 2x2 inner corners, got {text!r}")
+    return a, b
+
+
+def _pair(text: str) -> tuple[float, float]:
+    try:
+        a, b = (float(v) for v in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected two numbers 'A,B', got {text!r}") from None
+    if not (math.isfinite(a) and math.isfinite(b)):
+        raise argparse.ArgumentTypeError(f"expected two finite numbers 'A,B', got {text!r}")
+    return a, b
+
+
+def _tilt_pair(text: str) -> tuple[float, float]:
+    a, b = _pair(text)
+    if max(abs(a), abs(b)) > 45.0:
+        raise argparse.ArgumentTypeError(f"sensor tilts (alpha,beta) must be within +-45 deg, got {text!r}")
+    return a, b
+
+
+def _roi(text: str) -> tuple[int, int, int, int]:
+    try:
+        numbers = tuple(float(v) for v in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"roi must be four numbers X0,Y0,X1,Y1 (px), got {text!r}") from None
+    if len(numbers) != 4:
+        raise argparse.ArgumentTypeError(f"roi must be four numbers X0,Y0,X1,Y1 (px), got {text!r}")
+    if not all(math.isfinite(v) for v in numbers):
+        raise argparse.ArgumentTypeError(f"roi must be four finite numbers X0,Y0,X1,Y1 (px), got {text!r}")
+    x0, y0, x1, y1 = (int(round(v)) for v in numbers)
+    if min(x0, y0) < 0 or x1 <= x0 or y1 <= y0:
+        raise argparse.ArgumentTypeError(f"roi needs 0 <= X0 < X1 and 0 <= Y0 < Y1 (px), got {text!r}")
+    return x0, y0, x1, y1
+
+
+# ------------------------------------------------------------------------------------------------------------
+# Checks on files and folders, run before any long computation.
+def _input_file(path: Path, what: str) -> Path:
+    path = Path(path)
+    if path.is_dir():
+        raise ValueError(f"{what} {path} is a directory, not a file")
+    if not path.is_file():
+        raise ValueError(f"{what} not found: {path}")
+    return path
+
+
+def _existing_ancestor_is_folder(path: Path, what: str) -> None:
+    for parent in path.parents:
+        if parent.exists():
+            if not parent.is_dir():
+                raise ValueError(f"{what} {path}: {parent} is a file, not a folder")
+            return
+
+
+def _output_file(path: Path, what: str = "--out") -> Path:
+    path = Path(path)
+    if path.is_dir():
+        raise ValueError(f"{what} {path} is a directory; give the name of the file to write")
+    _existing_ancestor_is_folder(path, what)
+    return path
+
+
+def _output_folder(path: Path, what: str = "--out") -> Path:
+    path = Path(path)
+    if path.exists() and not path.is_dir():
+        raise ValueError(f"{what} {path} is a file, not a folder")
+    _existing_ancestor_is_folder(path, what)
+    return path
+
+
+def _glob_files(pattern: str, option: str) -> list[str]:
+    import glob
+
+    matches = sorted(glob.glob(pattern))
+    if not matches:
+        raise ValueError(f"no images match {option} {pattern!r}")
+    folders = [m for m in matches if Path(m).is_dir()]
+    if folders:
+        raise ValueError(f"{option} {pattern!r} matches the directory {folders[0]}; give a pattern of image files")
+    return matches
+
+
+def _paired_globs(left_pattern: str, right_pattern: str) -> tuple[list[str], list[str]]:
+    left, right = _glob_files(left_pattern, "--left"), _glob_files(right_pattern, "--right")
+    if len(left) != len(right):
+        raise ValueError(f"{len(left)} left images but {len(right)} right images: they must pair up "
+                         f"(--left {left_pattern!r}, --right {right_pattern!r})")
+    same = sorted(set(map(_resolved, left)) & set(map(_resolved, right)))
+    if same:
+        raise ValueError(f"--left and --right both match {same[0]}: left and right images must be different files")
+    return left, right
+
+
+def _resolved(path) -> str:
+    return str(Path(path).resolve())
+
+
+def _size(image: np.ndarray) -> str:
+    return f"{image.shape[1]} x {image.shape[0]} px"
+
+
+def _read_image(path, what: str):
+    """An image through the one loader, after checking the path is a file (a directory says so)."""
+    from measurement.image_io import read_grey
+
+    return read_grey(_input_file(Path(path), what))
+
+
+def _check_subset_fits(subset: int, image: np.ndarray, what: str = "image") -> None:
+    if subset > min(image.shape):
+        raise ValueError(f"--subset {subset} px does not fit the {_size(image)} {what}: it must be at most "
+                         f"{min(image.shape)} px (the image's smaller side)")
+
+
+def _check_roi_in_image(roi, image: np.ndarray, what: str = "image") -> None:
+    if roi is None:
+        return
+    x0, y0, x1, y1 = roi
+    h, w = image.shape
+    if x1 > w or y1 > h:
+        raise ValueError(f"--roi {x0},{y0},{x1},{y1} reaches outside the {_size(image)} {what} "
+                         f"(need X1 <= {w}, Y1 <= {h})")
+
+
+def _poi_grid(image: np.ndarray, args, mask=None, what: str = "image"):
+    """The POI grid of the options, with errors that name the option the user gave (never an implicit ROI)."""
+    from measurement.dic import poi_grid
+
+    _check_subset_fits(args.subset, image, what)
+    _check_roi_in_image(args.roi, image, what)
+    try:
+        return poi_grid(image.shape, args.subset, args.step, roi=args.roi, mask=mask)
+    except ValueError as err:
+        if args.roi is not None:
+            raise ValueError(f"--roi {','.join(map(str, args.roi))}: {err}") from None
+        if mask is not None:
+            raise ValueError(f"--mask: {err}") from None
+        raise ValueError(f"--subset {args.subset} px leaves no point of interest in the {_size(image)} {what} "
+                         f"({err})") from None
+
+
+# ------------------------------------------------------------------------------------------------------------
 def _parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="workbench", description="Scheimpflug stereo-DIC virtual lab.")
     sub = p.add_subparsers(dest="command", required=True)
@@ -45,31 +282,33 @@ def _parser() -> argparse.ArgumentParser:
     rsub = render.add_subparsers(dest="what", required=True)
     cb = rsub.add_parser("checkerboard", help="random stereo views of the 12 x 9 checkerboard + truth.json")
     cb.add_argument("--rig", default="paper")
-    cb.add_argument("--views", type=_positive_int, default=10)
-    cb.add_argument("--seed", type=int, default=0)
+    cb.add_argument("--views", type=_views, default=10)
+    cb.add_argument("--seed", type=_seed, default=0)
     cb.add_argument("--scale", type=_scale, default=1.0, help="shrink image size and K together (fast runs)")
     cb.add_argument("--spp", type=_positive_int, default=64, help="samples per pixel")
-    cb.add_argument("--noise-grey", type=float, default=0.0, help="Gaussian read noise, grey levels")
+    cb.add_argument("--noise-grey", type=_non_negative_float, default=0.0, help="Gaussian read noise, grey levels")
     cb.add_argument("--bit-depth", type=int, choices=(8, 16), default=8)
     cb.add_argument("--format", choices=("png", "tiff"), default="png")
+    cb.add_argument("--overwrite", action="store_true",
+                    help="replace an earlier dataset in --out (deletes exactly the files its manifest.json lists)")
     cb.add_argument("--out", type=Path, required=True)
 
     rep = sub.add_parser("reproduce", help="run one of the paper's checks and write a report")
     repsub = rep.add_subparsers(dest="what", required=True)
     ag = repsub.add_parser("agreement", help="render <-> camera-model agreement at checkerboard corners")
     ag.add_argument("--rig", default="paper")
-    ag.add_argument("--views", type=_positive_int, default=2)
-    ag.add_argument("--seed", type=int, default=0)
+    ag.add_argument("--views", type=_views, default=2)
+    ag.add_argument("--seed", type=_seed, default=0)
     ag.add_argument("--scale", type=_scale, default=1.0)
     ag.add_argument("--spp", type=_positive_int, default=256)
     ag.add_argument("--out", type=Path, required=True)
     rc = repsub.add_parser("calibration", help="the paper's calibration protocol on rendered views (Table 1, Fig 5)")
     rc.add_argument("--scale", type=_scale, default=1.0)
-    rc.add_argument("--seed", type=int, default=0)
+    rc.add_argument("--seed", type=_seed, default=0)
     rc.add_argument("--spp", type=_positive_int, default=64)
-    rc.add_argument("--noise-grey", type=float, default=1.0)
-    rc.add_argument("--calibration-views", type=_positive_int, default=30)
-    rc.add_argument("--validation-views", type=_positive_int, default=20)
+    rc.add_argument("--noise-grey", type=_non_negative_float, default=1.0)
+    rc.add_argument("--calibration-views", type=_views, default=30)
+    rc.add_argument("--validation-views", type=_views, default=20)
     rc.add_argument("--refine-corners", action="store_true", help="saddle-fit refinement of OpenCV's corners")
     rc.add_argument("--out", type=Path, required=True)
     rm = repsub.add_parser("rigid-motion", help="the paper's rigid-motion test (Fig 6) on rendered states, scored")
@@ -78,9 +317,9 @@ def _parser() -> argparse.ArgumentParser:
                     help="'rendered' (reproduced from rendered boards, default), 'true' (the true rig) or a file")
     rm.add_argument("--lens", choices=("thin", "pinhole"), default="pinhole",
                     help="pinhole (default) or thin lens at f/8 with the rig's tilted sensors (its focus plane misses the face)")
-    rm.add_argument("--seed", type=int, default=0)
+    rm.add_argument("--seed", type=_seed, default=0)
     rm.add_argument("--spp", type=_positive_int, default=64)
-    rm.add_argument("--subset", type=_positive_int, default=65)
+    rm.add_argument("--subset", type=_subset, default=65)
     rm.add_argument("--step", type=_positive_int, default=5)
     rm.add_argument("--out", type=Path, required=True)
     bd = repsub.add_parser("bending", help="the paper's three-point bending test (Figs 7-8): FE truth, strain, scored")
@@ -90,36 +329,38 @@ def _parser() -> argparse.ArgumentParser:
     bd.add_argument("--lens", choices=("thin", "pinhole"), default="thin")
     bd.add_argument("--calib", default="rendered",
                     help="'rendered' (reproduced from rendered boards, default), 'true' (the true rig) or a file")
-    bd.add_argument("--seed", type=int, default=0)
+    bd.add_argument("--seed", type=_seed, default=0)
     bd.add_argument("--spp", type=_positive_int, default=64)
-    bd.add_argument("--noise-grey", type=float, default=1.0)
-    bd.add_argument("--subset", type=_positive_int, default=65)
+    bd.add_argument("--noise-grey", type=_non_negative_float, default=1.0)
+    bd.add_argument("--subset", type=_subset, default=65)
     bd.add_argument("--step", type=_positive_int, default=5)
-    bd.add_argument("--window", type=int, default=15,
+    bd.add_argument("--window", type=_integer, default=15,
                     help="strain window (points per side, odd >= 3); 0 = per-triangle Cosserat strain, no window")
     bd.add_argument("--out", type=Path, required=True)
     da = repsub.add_parser("dic-accuracy", help="DIC bias vs sub-pixel shift, noise floor, shape functions")
     da.add_argument("--out", type=Path, required=True)
     dof = repsub.add_parser("depth-of-field", help="MIG of an oblique speckled plate: Scheimpflug vs untilted")
     dof.add_argument("--scale", type=_scale, default=1.0)
-    dof.add_argument("--object-tilt-deg", type=float, default=38.0)
-    dof.add_argument("--f-number", type=float, default=4.0)
+    dof.add_argument("--object-tilt-deg", type=_angle_deg, default=38.0)
+    dof.add_argument("--f-number", type=_positive_float, default=4.0)
     dof.add_argument("--spp", type=_positive_int, default=64)
-    dof.add_argument("--seed", type=int, default=0)
+    dof.add_argument("--seed", type=_seed, default=0)
     dof.add_argument("--out", type=Path, required=True)
     cal = sub.add_parser("calibrate", help="stepwise Scheimpflug stereo calibration from checkerboard image pairs")
     cal.add_argument("--left", required=True, help="glob of left images, e.g. 'views/left_*.png' (sorted)")
     cal.add_argument("--right", required=True, help="glob of right images (sorted; paired with the left ones)")
-    cal.add_argument("--square-mm", type=float, default=5.0)
+    cal.add_argument("--square-mm", type=_positive_float, default=5.0)
     cal.add_argument("--pattern", type=_pattern, default=(11, 8), help="inner corners, COLSxROWS (default 11x8)")
     cal.add_argument("--model", choices=("rmm", "opencv-tilt", "pinhole"), default="rmm")
-    cal.add_argument("--tilt-guess-deg", type=_pair, default=(0.0, 0.0),
+    cal.add_argument("--tilt-guess-deg", type=_tilt_pair, default=(0.0, 0.0),
                      help="datasheet tilt (alpha,beta) of the left camera for step 1")
-    cal.add_argument("--tilt-guess-right-deg", type=_pair, default=None,
+    cal.add_argument("--tilt-guess-right-deg", type=_tilt_pair, default=None,
                      help="right camera's (alpha,beta); default mirrors the left one: (alpha,-beta)")
     cal.add_argument("--no-joint", action="store_true", help="skip the final joint refinement")
     cal.add_argument("--refine-corners", action="store_true", help="saddle-fit refinement of OpenCV's corners")
     cal.add_argument("--out", type=Path, required=True, help="calibration JSON (a .yaml OpenCV export is written beside)")
+
+    from measurement.stereo_dic import MAX_MEDIAN_RESIDUAL_PX, MIN_MEASURED_FRACTION
 
     st = sub.add_parser("stereo", help="stereo-DIC of an image sequence with a calibration file (real or rendered)")
     st.add_argument("--calib", type=Path, required=True, help="calibration JSON (workbench calibrate) or OpenCV YAML")
@@ -128,18 +369,27 @@ def _parser() -> argparse.ArgumentParser:
     st.add_argument("--left", required=True, help="glob of left deformed images (sorted; paired with --right)")
     st.add_argument("--right", required=True, help="glob of right deformed images")
     st.add_argument("--roi", type=_roi, default=None, help="rectangle of points on the left reference X0,Y0,X1,Y1")
-    st.add_argument("--subset", type=_positive_int, default=65, help="subset size (odd, px), default 65")
+    st.add_argument("--subset", type=_subset, default=65, help="subset size (odd, px), default 65")
     st.add_argument("--step", type=_positive_int, default=5, help="grid step (px), default 5")
     st.add_argument("--order", type=int, choices=(1, 2), default=2)
-    st.add_argument("--min-zncc", type=float, default=0.8)
-    st.add_argument("--out", type=Path, required=True, help="output folder (CSV + VTK per state)")
+    st.add_argument("--min-zncc", type=_zncc, default=0.8)
+    st.add_argument("--max-residual-px", type=_positive_float, default=MAX_MEDIAN_RESIDUAL_PX,
+                    help="refuse the reference or a state whose median triangulation residual is above this "
+                         f"(px), default {MAX_MEDIAN_RESIDUAL_PX:g}")
+    st.add_argument("--min-measured-fraction", type=_fraction, default=MIN_MEASURED_FRACTION,
+                    help="refuse the reference (of its points) or a state (of the reference's points) measuring less "
+                         f"than this fraction, default {MIN_MEASURED_FRACTION:g}")
+    st.add_argument("--overwrite", action="store_true",
+                    help="replace earlier results in --out (deletes exactly the files its manifest.json lists)")
+    st.add_argument("--out", type=Path, required=True,
+                    help="output folder (CSV + VTK per state, summary.csv, manifest.json); exit 1 if a state failed")
 
     dic = sub.add_parser("dic", help="2-D subset DIC between a reference and a deformed image (any 8/16-bit grey files)")
     dic.add_argument("reference", type=Path, help="reference image file")
     dic.add_argument("deformed", type=Path, help="deformed image file")
     dic.add_argument("--roi", type=_roi, default=None, help="rectangle of points of interest X0,Y0,X1,Y1 (px)")
     dic.add_argument("--mask", type=Path, default=None, help="image whose non-zero pixels may hold points of interest")
-    dic.add_argument("--subset", type=_positive_int, default=33, help="subset size 2M+1 (odd, px), default 33")
+    dic.add_argument("--subset", type=_subset, default=33, help="subset size 2M+1 (odd, px), default 33")
     dic.add_argument("--step", type=_positive_int, default=8, help="grid step (px), default 8")
     dic.add_argument("--order", type=int, choices=(1, 2), default=1, help="shape function order, default 1")
     dic.add_argument("--interp", choices=("biquintic", "bicubic"), default="biquintic")
@@ -148,38 +398,47 @@ def _parser() -> argparse.ArgumentParser:
     dic.add_argument("--seed-guess", type=_pair, default=(0.0, 0.0),
                      help="displacement U,V (px) at which the seed search is centred, default 0,0")
     dic.add_argument("--search-radius", type=_positive_int, default=32, help="seed search half-width (px)")
-    dic.add_argument("--min-zncc", type=float, default=0.8, help="points below this ZNCC are rejected")
-    dic.add_argument("--tolerance", type=float, default=1e-3, help="IC-GN convergence threshold (px at the subset edge)")
-    dic.add_argument("--lowpass-sigma", type=float, default=0.0, help="Gaussian pre-filter sigma (px), default off")
+    dic.add_argument("--min-zncc", type=_zncc, default=0.8, help="points below this ZNCC are rejected")
+    dic.add_argument("--tolerance", type=_positive_float, default=1e-3,
+                     help="IC-GN convergence threshold (px at the subset edge)")
+    dic.add_argument("--lowpass-sigma", type=_non_negative_float, default=0.0,
+                     help="Gaussian pre-filter sigma (px), default off")
     dic.add_argument("--threads", type=_positive_int, default=None, help="worker threads (default: all cores)")
     dic.add_argument("--out", type=Path, required=True, help="CSV of the points (x,y,u,v,zncc,iterations,status,...)")
     return p
 
 
-def _roi(text: str) -> tuple[int, int, int, int]:
-    try:
-        values = tuple(int(round(float(v))) for v in text.split(","))
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"roi must be X0,Y0,X1,Y1, got {text!r}") from None
-    if len(values) != 4:
-        raise argparse.ArgumentTypeError(f"roi must be X0,Y0,X1,Y1, got {text!r}")
-    return values
+# ------------------------------------------------------------------------------------------------------------
+def _rig_option(calib: str) -> None:
+    """``--calib rendered|true|FILE``: a file must exist (checked before any rendering)."""
+    if calib not in ("rendered", "true"):
+        path = Path(calib)
+        if path.is_dir():
+            raise ValueError(f"--calib {calib} is a directory, not a calibration file")
+        if not path.is_file():
+            raise ValueError(f"calibration file not found: {calib} (--calib takes 'true', 'rendered' or a "
+                             "calibration file)")
 
 
 def _reproduce_rigid_motion(args) -> int:
     from workbench.experiments.rigid_motion import reproduce_rigid_motion
 
+    _rig_option(args.calib)
+    _output_folder(args.out)
     m = reproduce_rigid_motion(args.out, scale=args.scale, calib=args.calib, lens=args.lens, seed=args.seed,
                                spp=args.spp, subset_size=args.subset, step=args.step)
     e = m["reference_3d_error_um"]
     print(f"{m['calibration']}: reference 3D error {e['aligned_rms']:.3f} um aligned ({e['unaligned_rms']:.1f} um "
           f"unaligned), {m['points']} points")
     for r in m["states"]:
+        if "error" in r:
+            print(f"  {r['imposed_mm']:5.1f} mm: skipped ({r['error']})")
+            continue
         paper = "" if r["paper_mean_um"] is None else f"; paper {r['paper_mean_um']:.1f} / {r['paper_std_um']:.1f} um"
         print(f"  {r['imposed_mm']:5.1f} mm: mean error {r['mean_error_um']:+.3f} um, std {r['std_um']:.3f} um "
               f"({r['points']} points){paper}")
     print(f"wrote {args.out / 'report.md'}")
-    return 0
+    return 0 if any("error" not in r for r in m["states"]) else 1
 
 
 def _reproduce_bending(args) -> int:
@@ -187,6 +446,8 @@ def _reproduce_bending(args) -> int:
 
     if args.window != 0 and (args.window < 3 or args.window % 2 == 0):
         raise ValueError(f"--window must be 0 (per-triangle strain) or an odd number >= 3, got {args.window}")
+    _rig_option(args.calib)
+    _output_folder(args.out)
     m = reproduce_bending(args.out, scale=args.scale, rig_name=args.rig, lens=args.lens, calib=args.calib,
                           seed=args.seed, spp=args.spp, noise_grey=args.noise_grey, subset_size=args.subset,
                           step=args.step, window=args.window or None)
@@ -206,6 +467,7 @@ def _reproduce_bending(args) -> int:
 def _reproduce_dic_accuracy(args) -> int:
     from workbench.experiments.dic_accuracy import reproduce_dic_accuracy
 
+    _output_folder(args.out)
     metrics = reproduce_dic_accuracy(args.out)
     for curve in metrics["bias"]:
         print(f"bias {curve['label']}: max {curve['max_abs_px']:.5f} px")
@@ -213,51 +475,99 @@ def _reproduce_dic_accuracy(args) -> int:
     return 0
 
 
-def _stereo(args) -> int:
-    import glob
-    import warnings
-
+def _load_rig(path: Path):
     from measurement.calibration.io import load_calibration, load_opencv_yaml
-    from measurement.dic import DICSettings
-    from measurement.image_io import read_grey
-    from measurement.stereo_dic import StereoMatchError, measure_state, reference_shape
-    from measurement.stereo_io import write_state_csv, write_state_vtk
 
-    if not args.calib.is_file():
-        raise ValueError(f"calibration file not found: {args.calib}")
-    rig = load_opencv_yaml(args.calib) if args.calib.suffix.lower() in (".yaml", ".yml") else load_calibration(args.calib)
-    left_files, right_files = sorted(glob.glob(args.left)), sorted(glob.glob(args.right))
-    if not left_files or not right_files:
-        raise ValueError(f"no images match --left {args.left!r}" if not left_files
-                         else f"no images match --right {args.right!r}")
-    if len(left_files) != len(right_files):
-        raise ValueError(f"{len(left_files)} left images but {len(right_files)} right images: they must pair up")
+    if path.is_dir():
+        raise ValueError(f"--calib {path} is a directory, not a calibration file")
+    if not path.is_file():
+        raise ValueError(f"calibration file not found: {path}")
+    return load_opencv_yaml(path) if path.suffix.lower() in (".yaml", ".yml") else load_calibration(path)
+
+
+def _check_against_calibration(image: np.ndarray, camera, what: str) -> None:
+    if image.shape != (camera.height, camera.width):
+        raise ValueError(f"{what} is {_size(image)} but the calibration is for {camera.width} x {camera.height} px")
+
+
+def _stereo(args) -> int:
+    from measurement.dic import DICSettings
+    from measurement.stereo_dic import StereoMatchError, StereoQualityError, measure_state, reference_shape
+    from measurement.stereo_io import write_state_csv, write_state_summary, write_state_vtk
+    from workbench.manifest import complete_folder, prepare_folder
+
+    # Everything is checked before the first match and the first write.
+    rig = _load_rig(args.calib)
+    _input_file(args.left_ref, "--left-ref")
+    _input_file(args.right_ref, "--right-ref")
+    if _resolved(args.left_ref) == _resolved(args.right_ref):
+        raise ValueError(f"--left-ref and --right-ref are the same file ({args.left_ref})")
+    left_files, right_files = _paired_globs(args.left, args.right)
+    _output_folder(args.out)
+    left_ref = _read_image(args.left_ref, "--left-ref")
+    right_ref = _read_image(args.right_ref, "--right-ref")
+    _check_against_calibration(left_ref, rig.left, f"--left-ref {args.left_ref}")
+    _check_against_calibration(right_ref, rig.right, f"--right-ref {args.right_ref}")
+    for fl, fr in zip(left_files, right_files):
+        _check_against_calibration(_read_image(fl, "left image"), rig.left, f"left image {fl}")
+        _check_against_calibration(_read_image(fr, "right image"), rig.right, f"right image {fr}")
+    _poi_grid(left_ref, args, what="left reference image")
     settings = DICSettings(subset_size=args.subset, step=args.step, order=args.order, min_zncc=args.min_zncc)
-    left_ref, right_ref = read_grey(args.left_ref), read_grey(args.right_ref)
-    shape = reference_shape(rig.left, rig.right, rig.R_right_from_left, rig.T_right_from_left_mm, left_ref, right_ref,
-                            settings, roi=args.roi)
-    args.out.mkdir(parents=True, exist_ok=True)
-    write_state_csv(args.out / "reference.csv", shape)
-    write_state_vtk(args.out / "reference.vtk", shape)
-    print(f"reference: {int(shape.valid.sum())}/{shape.x.size} points triangulated, median residual "
-          f"{np.nanmedian(shape.residual_px):.4f} px")
+    names = [f"state_{k:03d}" for k in range(len(left_files))]
+    planned = ["reference.csv", "reference.vtk", "summary.csv"] + [f"{n}.{e}" for n in names for e in ("csv", "vtk")]
+    prepare_folder(args.out, "stereo", planned, overwrite=args.overwrite, dry_run=True)
+    thresholds = dict(max_median_residual_px=args.max_residual_px, min_measured_fraction=args.min_measured_fraction)
+    hint = (f" (thresholds: --max-residual-px {args.max_residual_px:g}, "
+            f"--min-measured-fraction {args.min_measured_fraction:g})")
+
+    try:
+        shape = reference_shape(rig.left, rig.right, rig.R_right_from_left, rig.T_right_from_left_mm, left_ref,
+                                right_ref, settings, roi=args.roi, **thresholds)
+    except StereoQualityError as err:
+        raise ValueError(f"{err}{hint}") from None
+    prepare_folder(args.out, "stereo", planned, overwrite=args.overwrite)
+    written = [write_state_csv(args.out / "reference.csv", shape).name,
+               write_state_vtk(args.out / "reference.vtk", shape).name]
+    q = shape.quality
+    print(f"reference: {q.measured}/{shape.x.size} points triangulated, median residual {q.median_residual_px:.4f} px, "
+          f"95th percentile {q.p95_residual_px:.4f} px")
+    rows = [{"state": "reference", "left": str(args.left_ref), "right": str(args.right_ref), "quality": q}]
     from tqdm import tqdm
+
+    from measurement.image_io import read_grey
+    skipped = []
     for k, (fl, fr) in enumerate(tqdm(list(zip(left_files, right_files)), desc="stereo states")):
+        what = f"state {k} ({fl}, {fr})"
         try:
             state = measure_state(rig.left, rig.right, rig.R_right_from_left, rig.T_right_from_left_mm, shape,
-                                  left_ref, read_grey(fl), read_grey(fr), settings)
+                                  left_ref, read_grey(fl), read_grey(fr), settings, name=what, **thresholds)
         except StereoMatchError as err:
-            warnings.warn(f"state {k} ({fl}, {fr}) skipped: {err}", stacklevel=1)
+            message = f"{err}{hint}" if isinstance(err, StereoQualityError) else f"{what}: {err}"
+            tqdm.write(f"workbench stereo: state {k} skipped: {message}", file=sys.stderr)
+            skipped.append(k)
+            rows.append({"state": names[k], "left": fl, "right": fr, "quality": getattr(err, "quality", None),
+                         "error": message})
             continue
-        name = f"state_{k:03d}"
-        write_state_csv(args.out / f"{name}.csv", shape, state)
-        write_state_vtk(args.out / f"{name}.vtk", shape, state)
-        ok = state.valid
-        if ok.mean() < 0.5:
-            warnings.warn(f"state {k} ({fl}, {fr}): only {ok.mean():.0%} of the points were measured", stacklevel=1)
-        tqdm.write(f"state {k} ({Path(fl).name}, {Path(fr).name}): {int(ok.sum())}/{ok.size} points, mean D "
-                   f"{np.nanmean(state.D_mm) if ok.any() else float('nan'):.4f} mm")
-    print(f"wrote {args.out}")
+        written += [write_state_csv(args.out / f"{names[k]}.csv", shape, state).name,
+                    write_state_vtk(args.out / f"{names[k]}.vtk", shape, state).name]
+        q = state.quality
+        rows.append({"state": names[k], "left": fl, "right": fr, "quality": q,
+                     "mean_D_mm": float(np.nanmean(state.D_mm[state.valid]))})
+        tqdm.write(f"state {k} ({Path(fl).name}, {Path(fr).name}): {q.measured}/{q.points} points, median residual "
+                   f"{q.median_residual_px:.4f} px, 95th percentile {q.p95_residual_px:.4f} px, mean D "
+                   f"{rows[-1]['mean_D_mm']:.4f} mm")
+    written.append(write_state_summary(args.out / "summary.csv", rows).name)
+    complete_folder(args.out, "stereo", written,
+                    {"calib": str(args.calib), "left_ref": str(args.left_ref), "right_ref": str(args.right_ref),
+                     "left": args.left, "right": args.right, "roi": args.roi, "subset": args.subset,
+                     "step": args.step, "order": args.order, "min_zncc": args.min_zncc, **thresholds,
+                     "skipped_states": skipped})
+    print(f"wrote {args.out} ({len(left_files) - len(skipped)} of {len(left_files)} states; summary.csv)")
+    if skipped:
+        print(f"workbench stereo: error: {len(skipped)} of {len(left_files)} states could not be measured (states "
+              f"{', '.join(map(str, skipped))}; see the messages above and {args.out / 'summary.csv'})",
+              file=sys.stderr)
+        return 1
     return 0
 
 
@@ -265,23 +575,40 @@ def _dic(args) -> int:
     import numba
 
     from measurement.dic import DICSettings, Status, correlate
-    from measurement.image_io import read_grey
 
-    if args.threads:
-        numba.set_num_threads(min(args.threads, numba.config.NUMBA_NUM_THREADS))
-    reference = read_grey(args.reference)
-    deformed = read_grey(args.deformed)
+    reference = _read_image(args.reference, "reference image")
+    deformed = _read_image(args.deformed, "deformed image")
     if reference.shape != deformed.shape:
         raise ValueError(f"{args.reference} is {reference.shape[1]} x {reference.shape[0]} px but {args.deformed} is "
                          f"{deformed.shape[1]} x {deformed.shape[0]} px: the images must have the same size")
+    _output_file(args.out)
     mask = None
     if args.mask is not None:
-        mask = read_grey(args.mask) != 0
+        mask_image = _read_image(args.mask, "--mask")
+        if mask_image.shape != reference.shape:
+            raise ValueError(f"--mask {args.mask} is {_size(mask_image)} but the images are {_size(reference)}")
+        mask = mask_image != 0
+    h, w = reference.shape
+    for x, y in args.seed_point or ():
+        if not (0 <= x <= w - 1 and 0 <= y <= h - 1):
+            raise ValueError(f"--seed-point {x:g},{y:g} is outside the {_size(reference)} image "
+                             f"(0 <= X <= {w - 1}, 0 <= Y <= {h - 1})")
+    u, v = args.seed_guess
+    if abs(u) >= w or abs(v) >= h:
+        raise ValueError(f"--seed-guess {u:g},{v:g} moves the seed search outside the {_size(reference)} image")
+    grid = _poi_grid(reference, args, mask)
     settings = DICSettings(subset_size=args.subset, step=args.step, order=args.order, interpolation=args.interp,
                            search_radius_px=args.search_radius, min_zncc=args.min_zncc,
                            tolerance_px=args.tolerance, lowpass_sigma_px=args.lowpass_sigma)
-    result = correlate(reference, deformed, settings, roi=args.roi, mask=mask, seed_points_xy=args.seed_point,
-                       seed_guess_px=args.seed_guess)
+    if args.threads:
+        numba.set_num_threads(min(args.threads, numba.config.NUMBA_NUM_THREADS))
+    try:
+        result = correlate(reference, deformed, settings, grid=grid, seed_points_xy=args.seed_point,
+                           seed_guess_px=args.seed_guess)
+    except ValueError as err:
+        if str(err).startswith("seed point"):
+            raise ValueError(f"--seed-point: {err}") from None
+        raise
     result.to_csv(args.out)
     ok = result.converged
     counts = ", ".join(f"{name.lower()} {n}" for name, n in result.status_counts().items())
@@ -291,62 +618,73 @@ def _dic(args) -> int:
               f"{np.nanmax(result.v):.4f} px, median ZNCC {np.median(result.zncc[ok]):.4f}, "
               f"mean iterations {result.iterations[ok].mean():.2f}")
     else:
-        print(f"  no point converged (statuses: {', '.join(Status(s).name for s in np.unique(result.status))})",
-              file=sys.stderr)
+        print(f"workbench dic: error: no point converged (statuses: "
+              f"{', '.join(Status(s).name for s in np.unique(result.status))})", file=sys.stderr)
         return 1
     return 0
 
 
-def _pattern(text: str) -> tuple[int, int]:
-    try:
-        a, b = (int(v) for v in text.lower().split("x"))
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"pattern must look like 11x8, got {text!r}") from None
-    if a < 2 or b < 2:
-        raise argparse.ArgumentTypeError(f"pattern needs at least 2x2 inner corners, got {text!r}")
-    return a, b
+def _calibration_texts(cal, pairs) -> tuple[str, str]:
+    """The calibration JSON and its OpenCV YAML export as texts, built before either file is written."""
+    import tempfile
 
+    from measurement.calibration.io import export_opencv_yaml, save_calibration
 
-def _pair(text: str) -> tuple[float, float]:
-    try:
-        a, b = (float(v) for v in text.split(","))
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected two numbers 'A,B', got {text!r}") from None
-    return a, b
+    with tempfile.TemporaryDirectory(prefix="workbench-calibrate-") as tmp:
+        json_path, yaml_path = Path(tmp) / "calibration.json", Path(tmp) / "calibration.yaml"
+        try:
+            save_calibration(cal, json_path, extra={"images": {"left": pairs.left_files, "right": pairs.right_files,
+                                                               "dropped": pairs.dropped}})
+            export_opencv_yaml(cal, yaml_path)
+            return json_path.read_text(encoding="utf-8"), yaml_path.read_text(encoding="utf-8")
+        except OSError as err:
+            raise OSError(f"cannot build the calibration files in {tmp}: {err.strerror or err}") from None
 
 
 def _calibrate(args) -> int:
-    import glob
+    from measurement.calibration.images import MIN_VIEWS, calibrate_from_files
+    from workbench.manifest import write_texts_together
 
-    from measurement.calibration.images import calibrate_from_files
-    from measurement.calibration.io import export_opencv_yaml, save_calibration
-
-    left, right = sorted(glob.glob(args.left)), sorted(glob.glob(args.right))
-    if not left or not right:
-        raise ValueError(f"no images match --left {args.left!r}" if not left else f"no images match --right {args.right!r}")
+    # Options and inputs are checked before any board is detected.
+    if args.out.suffix.lower() in (".yaml", ".yml"):
+        raise ValueError(f"--out {args.out} names the YAML export; give the calibration JSON (e.g. "
+                         f"{args.out.with_suffix('.json')}): the .yaml is written beside it")
+    _output_file(args.out)
+    yaml_out = args.out.with_suffix(".yaml")
+    _output_file(yaml_out, "the YAML export beside --out")
+    left, right = _paired_globs(args.left, args.right)
+    if len(left) < MIN_VIEWS:
+        raise ValueError(f"calibration needs at least {MIN_VIEWS} stereo pairs; --left {args.left!r} matches "
+                         f"{len(left)}")
+    first = None
+    for f in left + right:
+        image = _read_image(f, "image")
+        if first is None:
+            first = (image.shape, f)
+        elif image.shape != first[0]:
+            raise ValueError(f"image {f} is {_size(image)} but {first[1]} is {first[0][1]} x {first[0][0]} px: all "
+                             "images must have one size")
     guess_r = args.tilt_guess_right_deg or (args.tilt_guess_deg[0], -args.tilt_guess_deg[1])
     cal, pairs = calibrate_from_files(left, right, square_mm=args.square_mm, pattern_size=args.pattern,
                                       model=args.model, tilt_guess_left_deg=args.tilt_guess_deg,
                                       tilt_guess_right_deg=guess_r, joint=not args.no_joint,
                                       refine_corners=args.refine_corners)
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    save_calibration(cal, args.out, extra={"images": {"left": pairs.left_files, "right": pairs.right_files,
-                                                       "dropped": pairs.dropped}})
-    export_opencv_yaml(cal, args.out.with_suffix(".yaml"))
+    json_text, yaml_text = _calibration_texts(cal, pairs)
+    write_texts_together({args.out: json_text, yaml_out: yaml_text})       # both files or neither
     print(f"calibrated {args.model} from {len(pairs.left_files)} stereo views ({len(pairs.dropped)} images dropped)")
     for side in ("left", "right"):
         c = getattr(cal, side)
         params = ", ".join(f"{n}={getattr(c.camera, n):.5g}±{c.sigma[n]:.2g}" for n in ("fx", "fy", "cx", "cy",
                            "alpha_deg", "beta_deg", "k1", "k2", "p1", "p2"))
         print(f"  {side}: reprojection RMS {c.rms_px:.4f} px; {params}")
-    print(f"  stereo T = {np.round(cal.T_right_from_left_mm, 4).tolist()} mm; wrote {args.out} and "
-          f"{args.out.with_suffix('.yaml')}")
+    print(f"  stereo T = {np.round(cal.T_right_from_left_mm, 4).tolist()} mm; wrote {args.out} and {yaml_out}")
     return 0
 
 
 def _reproduce_calibration(args) -> int:
     from workbench.experiments.calibration import reproduce_calibration
 
+    _output_folder(args.out)
     m = reproduce_calibration(args.out, scale=args.scale, seed=args.seed, spp=args.spp, noise_grey=args.noise_grey,
                               n_calibration=args.calibration_views, n_validation=args.validation_views,
                               refine_corners=args.refine_corners)
@@ -365,11 +703,12 @@ def _render_checkerboard(args) -> int:
     from workbench.experiments.checkerboard_views import write_checkerboard_dataset
     from workbench.rigs import get_rig
 
+    _output_folder(args.out)
     rig = get_rig(args.rig, args.scale)
     noise = SensorNoise(read_noise_grey=args.noise_grey, bit_depth=args.bit_depth)
     truth = write_checkerboard_dataset(rig, args.out, args.views, args.seed, spp=args.spp, noise=noise,
-                                       image_format=args.format)
-    print(f"wrote {len(truth['images'])} images and truth.json to {args.out}")
+                                       image_format=args.format, overwrite=args.overwrite)
+    print(f"wrote {len(truth['images'])} images, truth.json and manifest.json to {args.out}")
     return 0
 
 
@@ -377,6 +716,7 @@ def _reproduce_agreement(args) -> int:
     from workbench.experiments.render_agreement import measure_agreement, summary_lines, write_agreement_report
     from workbench.rigs import get_rig
 
+    _output_folder(args.out)
     rig = get_rig(args.rig, args.scale)
     summary = measure_agreement(rig, n_views=args.views, seed=args.seed, spp=args.spp)
     write_agreement_report(summary, args.out)
@@ -388,6 +728,7 @@ def _reproduce_agreement(args) -> int:
 def _reproduce_depth_of_field(args) -> int:
     from workbench.experiments.depth_of_field import reproduce_depth_of_field
 
+    _output_folder(args.out)
     m = reproduce_depth_of_field(args.out, scale=args.scale, object_tilt_deg=args.object_tilt_deg,
                                  f_number=args.f_number, spp=args.spp, seed=args.seed)
     for name, c in m["cameras"].items():
@@ -399,8 +740,43 @@ def _reproduce_depth_of_field(args) -> int:
     return 0
 
 
+@contextlib.contextmanager
+def _one_line_warnings(where: str):
+    """Warnings print as ``workbench CMD: warning: ...`` (no source line), as errors do."""
+    previous = warnings.formatwarning
+    warnings.formatwarning = lambda message, category, *rest: f"{where}: warning: {message}\n"
+    try:
+        yield
+    finally:
+        warnings.formatwarning = previous
+
+
+#: Options whose value is a comma-separated list of numbers (may start with a minus sign).
+_LIST_OPTIONS = ("--roi", "--seed-point", "--seed-guess", "--tilt-guess-deg", "--tilt-guess-right-deg")
+
+
+def _join_negative_lists(argv: list[str]) -> list[str]:
+    """``--seed-guess -3,2`` as ``--seed-guess=-3,2``: argparse would take ``-3,2`` for an option and say
+    "expected one argument"."""
+    out, k = [], 0
+    while k < len(argv):
+        token = argv[k]
+        if token in _LIST_OPTIONS and k + 1 < len(argv) and argv[k + 1].startswith("-") \
+                and not argv[k + 1].startswith("--") and "," in argv[k + 1]:
+            out.append(f"{token}={argv[k + 1]}")
+            k += 2
+            continue
+        out.append(token)
+        k += 1
+    return out
+
+
 def main(argv: list[str] | None = None) -> int:
-    args = _parser().parse_args(argv)
+    argv = _join_negative_lists(list(sys.argv[1:] if argv is None else argv))
+    try:
+        args = _parser().parse_args(argv)
+    except SystemExit as exit_:          # argparse: --help (0) or a refused option (2, message printed)
+        return exit_.code if isinstance(exit_.code, int) else (0 if exit_.code is None else 2)
     handlers = {("render", "checkerboard"): _render_checkerboard,
                 ("reproduce", "agreement"): _reproduce_agreement,
                 ("reproduce", "depth-of-field"): _reproduce_depth_of_field,
@@ -411,13 +787,18 @@ def main(argv: list[str] | None = None) -> int:
                 ("reproduce", "dic-accuracy"): _reproduce_dic_accuracy,
                 ("reproduce", "rigid-motion"): _reproduce_rigid_motion,
                 ("reproduce", "bending"): _reproduce_bending}
+    where = " ".join(filter(None, ("workbench", args.command, getattr(args, "what", None))))
     try:
-        return handlers[(args.command, getattr(args, "what", None))](args)
+        with _one_line_warnings(where):
+            return handlers[(args.command, getattr(args, "what", None))](args)
     except (ValueError, OSError, RuntimeError) as err:
         # Bad input and missing system pieces get one clear line, never a traceback.
-        where = " ".join(filter(None, ("workbench", args.command, getattr(args, "what", None))))
         print(f"{where}: error: {err}", file=sys.stderr)
         return 2
+    except KeyboardInterrupt:
+        print(f"{where}: interrupted (files already written are whole; a dataset without manifest.json is "
+              "incomplete)", file=sys.stderr)
+        return 130
 
 
 if __name__ == "__main__":

@@ -6,6 +6,7 @@ Conventions: the left camera frame is the world frame; ``X_right = R_right_from_
 from __future__ import annotations
 
 import json
+import warnings
 from dataclasses import dataclass, replace
 from functools import lru_cache
 from importlib import resources
@@ -24,6 +25,19 @@ PAPER_WORKING_DISTANCE_MM = 376.0
 RIG_NAMES = ("paper", "scheimpflug")
 #: Default f-number of the thin lens of the ``scheimpflug`` rig (a modest DIC aperture).
 DEFAULT_F_NUMBER = 8.0
+#: Below this many pixels on the shorter side a scaled rig's images warn: a checkerboard square or a DIC
+#: subset no longer fits (0.01 of the paper's 2456 x 2058 px is 25 x 21 px).
+MIN_IMAGE_SIDE_PX = 100
+
+
+def _warn_if_tiny(name: str, scale: float, camera: ScheimpflugCamera, full: ScheimpflugCamera) -> None:
+    """Warn when ``camera`` (``full`` scaled by ``scale``) has fewer than MIN_IMAGE_SIDE_PX pixels on a side."""
+    if min(camera.width, camera.height) < MIN_IMAGE_SIDE_PX:
+        lowest = MIN_IMAGE_SIDE_PX / min(full.width, full.height)
+        warnings.warn(f"the {name!r} rig at scale {scale:g} renders {camera.width} x {camera.height} px images, "
+                      f"below {MIN_IMAGE_SIDE_PX} px on a side: too small for checkerboard detection or DIC "
+                      f"subsets (a scale of {lowest:.3f} or more keeps {MIN_IMAGE_SIDE_PX} px)",
+                      UserWarning, stacklevel=3)
 
 
 def paper_values() -> dict:
@@ -104,6 +118,7 @@ def paper_rig(scale: float = 1.0, pixel_pitch_mm: float = DEFAULT_PIXEL_PITCH_MM
         cams[side] = cam.scaled(scale) if scale != 1.0 else cam
     R = cv2.Rodrigues(np.array(v["table1_calibration"]["stereo_R_rodrigues"], dtype=float))[0]
     T = np.array(v["table1_calibration"]["stereo_T_mm"], dtype=float)
+    _warn_if_tiny("paper", scale, cams["left"], cam)
     return StereoRig("paper", cams["left"], cams["right"], R, T, pixel_pitch_mm=pixel_pitch_mm / scale)
 
 
@@ -193,6 +208,7 @@ def scheimpflug_rig(scale: float = 1.0, f_number: float = DEFAULT_F_NUMBER,
     for side, (alpha, beta, _, _) in zip(("left", "right"), design):
         cam = replace(paper.camera(side), alpha_deg=alpha, beta_deg=beta)
         cams[side] = cam.scaled(scale) if scale != 1.0 else cam
+    _warn_if_tiny("scheimpflug", scale, cams["left"], paper.camera("left"))
     return StereoRig("scheimpflug", cams["left"], cams["right"], paper.R_right_from_left, paper.T_right_from_left_mm,
                      pixel_pitch_mm=pixel_pitch_mm / scale, lens_focal_length_mm=(design[0][2], design[1][2]),
                      f_number=float(f_number))

@@ -12,16 +12,24 @@ import warnings
 import cv2
 import numpy as np
 
+from measurement.image_io import to_uint8
+
 
 def _to_gray8(image: np.ndarray) -> np.ndarray:
+    """The 8-bit copy ``findChessboardCornersSB`` needs, scaled by the data's own range
+    (:func:`measurement.image_io.to_uint8`): 12-bit data in 16 bits or floats in [0, 1] keep 256 grey levels
+    (shifting to the top 8 bits left 12-bit data 16 levels, rounding left [0, 1] floats two)."""
     image = np.asarray(image)
     if image.ndim == 3:
+        if image.shape[2] not in (3, 4):
+            raise ValueError(f"image has {image.shape[2]} channels; expected grey, BGR or BGRA")
+        image = np.ascontiguousarray(image[..., :3])
+        if image.dtype not in (np.uint8, np.uint16, np.float32):
+            image = image.astype(np.float32)
         image = cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
-    if image.dtype == np.uint8:
-        return image
-    if image.dtype == np.uint16:
-        return (image >> 8).astype(np.uint8)
-    return np.clip(np.rint(image), 0, 255).astype(np.uint8)
+    if image.ndim != 2:
+        raise ValueError(f"image must be 2-D grey or 3-channel BGR, got shape {image.shape}")
+    return to_uint8(image)
 
 
 def _outer_square_value(gray: np.ndarray, corners: np.ndarray, nx: int, start: int, step_col: int,
@@ -44,6 +52,10 @@ def detect_checkerboard(image: np.ndarray, pattern_size: tuple[int, int] = (11, 
     Parameters
     ----------
     image : (H, W) or (H, W, 3) array, 8- or 16-bit or float grey levels
+        OpenCV's detector runs on an 8-bit copy scaled by the data's own range (0.1-99.9 percentiles, see
+        :func:`measurement.image_io.to_uint8`): 8-bit images as they are, 12-bit data in a 16-bit container
+        or floats in [0, 1] with the same 256 levels over their range. Its sub-pixel step (CALIB_CB_ACCURACY)
+        works on that copy; :func:`refine_corners_saddle` refines on the full-precision image.
     pattern_size : (columns, rows) of inner corners, OpenCV's ``patternSize`` (11 x 8 for 12 x 9 squares)
 
     Returns

@@ -1,7 +1,15 @@
 """Calibration files: a JSON with every parameter and its convention, and an OpenCV-readable YAML export.
 
 Both load back into :class:`CalibratedRig` with identical projections (the YAML stores every parameter as a
-double at full precision).
+double at full precision). Both are written atomically (:mod:`measurement.files`) and only after the content
+has passed the same validation as on loading, so a file is whole and loadable or not written at all.
+
+Loading validates every key the rig is built from (:mod:`measurement.schema`): required keys (a missing one is
+never filled with 0 or a default), types (a string where a number belongs is refused, never read as
+1.8e308), finite values and physical ranges (:data:`RANGES`: ``0 < fx, fy < 1e6`` px, ``|tilt| <``
+:data:`~measurement.camera.MAX_TILT_DEG`, ``|k1|, |k2|, |p1|, |p2| < 1e3``, image size positive integers,
+R a proper rotation within 1e-6, ``0 < |T| < 1e6`` mm). Every defect raises
+:class:`~measurement.schema.FileFormatError` (a ``ValueError``) naming the file and the key.
 """
 from __future__ import annotations
 
@@ -12,8 +20,13 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from measurement.calibration.stepwise import StereoCalibration
-from measurement.camera import INTRINSIC_NAMES, ScheimpflugCamera
+from measurement.calibration.stepwise import _TILT_MODEL, MODELS, StereoCalibration
+from measurement.camera import INTRINSIC_NAMES, MAX_TILT_DEG, TILT_MODELS, ScheimpflugCamera
+from measurement.files import atomic_write_text
+from measurement.schema import FileFormatError, Node, read_json_file, read_text_file
+
+__all__ = ["FORMAT", "CONVENTION", "RANGES", "CalibratedRig", "FileFormatError", "calibration_to_dict",
+           "save_calibration", "load_calibration", "export_opencv_yaml", "load_opencv_yaml"]
 
 FORMAT = "scheimpflug-stereo-calibration/1"
 CONVENTION = ("Camera frame as OpenCV (x right, y down, z forward), pixel centres at integer coordinates. "
@@ -22,6 +35,16 @@ CONVENTION = ("Camera frame as OpenCV (x right, y down, z forward), pixel centre
               "ideal plane; [x_t, y_t, 1] ~ A R_S^T [x_d, y_d, 1] with R_S = R_Y(beta) R_X(alpha); u = fx x_t + cx, "
               "v = fy y_t + cy. 'opencv-tilt' uses OpenCV's CALIB_TILTED_MODEL rotation order (tau_x = alpha, "
               "tau_y = beta). 'pinhole' has alpha = beta = 0.")
+
+#: Accepted range of every Table 1 parameter in a calibration file, open intervals (lo, hi).
+RANGES = {"fx": (0.0, 1e6), "fy": (0.0, 1e6), "cx": (-1e6, 1e6), "cy": (-1e6, 1e6),
+          "alpha_deg": (-MAX_TILT_DEG, MAX_TILT_DEG), "beta_deg": (-MAX_TILT_DEG, MAX_TILT_DEG),
+          "k1": (-1e3, 1e3), "k2": (-1e3, 1e3), "p1": (-1e3, 1e3), "p2": (-1e3, 1e3)}
+_UNITS = {"fx": "px", "fy": "px", "cx": "px", "cy": "px", "alpha_deg": "deg", "beta_deg": "deg"}
+#: Image width and height: integers in [1, MAX_IMAGE_PX].
+MAX_IMAGE_PX = 1_000_000
+#: The stereo translation's length must be in (0, MAX_BASELINE_MM) mm.
+MAX_BASELINE_MM = 1e6
 
 
 @dataclass(frozen=True)
@@ -60,33 +83,106 @@ def calibration_to_dict(cal: StereoCalibration, extra: dict | None = None) -> di
 
 
 def save_calibration(cal: StereoCalibration, path: str | Path, extra: dict | None = None) -> None:
-    Path(path).write_text(json.dumps(calibration_to_dict(cal, extra), indent=1))
+    """Write the calibration JSON atomically, after checking it loads back (FileFormatError otherwise)."""
+    text = json.dumps(calibration_to_dict(cal, extra), indent=1)
+    _refuse_unloadable(lambda: _rig_from_json(Node(json.loads(text), path)))
+    atomic_write_text(path, text)
 
 
-def _camera_from(entry: dict, where: str) -> ScheimpflugCamera:
+def _refuse_unloadable(load) -> None:
     try:
-        return ScheimpflugCamera(**entry["intrinsics"], width=entry["width"], height=entry["height"],
-                                 tilt_model=entry.get("tilt_model", "rmm"))
-    except (KeyError, TypeError) as err:
-        raise ValueError(f"{where}: malformed camera entry ({err})") from None
+        load()
+    except FileFormatError as err:
+        raise FileFormatError(err.file, err.key, f"{err.problem} (refusing to write a file that would not load; "
+                                                 f"nothing written)") from None
+
+
+# --- validation ----------------------------------------------------------------------------------------------
+def _camera(values: dict[str, float], width: int, height: int, tilt_model: str, model: str, where: Node,
+            key_of) -> ScheimpflugCamera:
+    """The camera of validated values, checked against the file's model; ``key_of(name)`` names a key."""
+    if tilt_model != _TILT_MODEL[model]:
+        raise where.error(f"tilt model {tilt_model!r} contradicts the file's model {model!r} "
+                          f"(which uses {_TILT_MODEL[model]!r})", key=key_of("tilt_model"))
+    if model == "pinhole":
+        for n in ("alpha_deg", "beta_deg"):
+            if values[n] != 0.0:
+                raise where.error(f"must be 0 for the 'pinhole' model, got {values[n]!r}", key=key_of(n))
+    try:
+        return ScheimpflugCamera(**values, width=width, height=height, tilt_model=tilt_model)
+    except ValueError as err:                                   # pragma: no cover - the ranges above are tighter
+        raise where.error(f"invalid camera: {err}") from None
+
+
+def _intrinsic(node: Node, name: str) -> float:
+    lo, hi = RANGES[name]
+    return node.number(lo, hi, unit=_UNITS.get(name, ""))
+
+
+def _json_camera(entry: Node, model: str) -> ScheimpflugCamera:
+    entry.mapping()
+    intr = entry["intrinsics"]
+    intr.only_keys(INTRINSIC_NAMES)
+    values = {n: _intrinsic(intr[n], n) for n in INTRINSIC_NAMES}
+    width, height = entry["width"].integer(1, MAX_IMAGE_PX), entry["height"].integer(1, MAX_IMAGE_PX)
+    tilt_model = entry["tilt_model"].string(TILT_MODELS)
+    key = entry.key
+    return _camera(values, width, height, tilt_model, model, entry,
+                   lambda n: f"{key}.{'intrinsics.' if n in INTRINSIC_NAMES else ''}{n}")
+
+
+def _model(node: Node) -> str:
+    return node.string(MODELS)
+
+
+def _check_format(node: Node) -> None:
+    fmt = node.string(nonempty=False)
+    if fmt != FORMAT:
+        raise node.error(f"unknown format {fmt!r}, expected {FORMAT!r}")
+
+
+def _translation(node: Node, shape=(3,)) -> np.ndarray:
+    T = node.array(shape).ravel()
+    norm = float(np.linalg.norm(T))
+    if not 0.0 < norm < MAX_BASELINE_MM:
+        raise node.error(f"the stereo translation's length must be in (0, {MAX_BASELINE_MM:g}) mm, got {norm:.6g} mm")
+    return T
+
+
+def _rig_from_json(doc: Node) -> CalibratedRig:
+    doc.mapping()
+    _check_format(doc["format"])
+    model = _model(doc["model"])
+    left, right = _json_camera(doc["left"], model), _json_camera(doc["right"], model)
+    size = doc.get("image_size_px")
+    if size is not None:
+        w, h = (n.integer(1, MAX_IMAGE_PX) for n in size.sequence(2, 2))
+        if (w, h) != (left.width, left.height):
+            raise size.error(f"{w} x {h} disagrees with the left camera's {left.width} x {left.height} px")
+    st = doc["stereo"]
+    R = st["R_right_from_left"].rotation()
+    T = _translation(st["T_right_from_left_mm"])
+    rvec = st.get("rvec_right_from_left")
+    if rvec is not None:
+        rv = rvec.array((3,), bound=10.0)
+        if not np.max(np.abs(cv2.Rodrigues(rv)[0] - R)) <= 1e-6:
+            raise rvec.error("disagrees with R_right_from_left (edit both, or remove the rotation vector)")
+    return CalibratedRig(model, left, right, R, T)
 
 
 def load_calibration(path: str | Path) -> CalibratedRig:
-    """Read a calibration JSON written by :func:`save_calibration` (or an OpenCV YAML by :func:`export_opencv_yaml`)."""
+    """Read a calibration JSON written by :func:`save_calibration` (or an OpenCV YAML by :func:`export_opencv_yaml`).
+
+    Raises
+    ------
+    FileFormatError (a ValueError)
+        Naming the file and the key: missing/empty/non-UTF-8/non-JSON file, unknown format, a missing key, a
+        wrong type, a non-finite value or one outside :data:`RANGES`, R not a rotation, T zero.
+    """
     path = Path(path)
-    if not path.is_file():
-        raise ValueError(f"calibration file {path} does not exist")
     if path.suffix.lower() in (".yml", ".yaml"):
         return load_opencv_yaml(path)
-    try:
-        d = json.loads(path.read_text())
-    except json.JSONDecodeError as err:
-        raise ValueError(f"{path} is not valid JSON: {err}") from None
-    if d.get("format") != FORMAT:
-        raise ValueError(f"{path}: unknown format {d.get('format')!r}, expected {FORMAT!r}")
-    st = d["stereo"]
-    return CalibratedRig(d["model"], _camera_from(d["left"], f"{path} left"), _camera_from(d["right"], f"{path} right"),
-                         np.array(st["R_right_from_left"], float), np.array(st["T_right_from_left_mm"], float))
+    return _rig_from_json(read_json_file(path, "calibration file"))
 
 
 def export_opencv_yaml(rig: CalibratedRig | StereoCalibration, path: str | Path) -> None:
@@ -94,13 +190,14 @@ def export_opencv_yaml(rig: CalibratedRig | StereoCalibration, path: str | Path)
 
     ``D1``/``D2`` are OpenCV's 14 ``CALIB_TILTED_MODEL`` coefficients. They reproduce our projection exactly only
     for the ``opencv-tilt`` and ``pinhole`` models or a single-axis RMM tilt; ``D_exact`` says which. The named
-    scalars (``left_fx`` ...) always hold the exact model.
+    scalars (``left_fx`` ...) always hold the exact model. The file is written atomically, after the text has
+    passed :func:`load_opencv_yaml`'s validation.
     """
     if isinstance(rig, StereoCalibration):
         rig = CalibratedRig(rig.model, rig.left.camera, rig.right.camera, rig.R_right_from_left, rig.T_right_from_left_mm)
-    fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_WRITE)
-    if not fs.isOpened():
-        raise OSError(f"cannot write {path}")
+    fs = cv2.FileStorage(".yaml", cv2.FILE_STORAGE_WRITE | cv2.FILE_STORAGE_MEMORY | cv2.FILE_STORAGE_FORMAT_YAML)
+    if not fs.isOpened():                                       # pragma: no cover
+        raise OSError(f"cannot write {path}: OpenCV could not open a YAML FileStorage")
     fs.write("format", FORMAT)
     fs.write("model", rig.model)
     fs.write("convention", CONVENTION)
@@ -108,10 +205,7 @@ def export_opencv_yaml(rig: CalibratedRig | StereoCalibration, path: str | Path)
     fs.write("image_height", int(rig.left.height))
     for side, cam in (("1", rig.left), ("2", rig.right)):
         fs.write(f"K{side}", cam.K)
-        dist = np.zeros((1, 14))
-        dist[0, :4] = cam.k1, cam.k2, cam.p1, cam.p2
-        dist[0, 12:] = cam.alpha_rad, cam.beta_rad
-        fs.write(f"D{side}", dist)
+        fs.write(f"D{side}", _opencv_distortion(cam))
         exact = cam.tilt_model == "opencv" or cam.alpha_deg == 0.0 or cam.beta_deg == 0.0
         fs.write(f"D{side}_exact", int(exact))
     for name, cam in (("left", rig.left), ("right", rig.right)):
@@ -120,25 +214,118 @@ def export_opencv_yaml(rig: CalibratedRig | StereoCalibration, path: str | Path)
             fs.write(f"{name}_{n}", float(getattr(cam, n)))
     fs.write("R", np.asarray(rig.R_right_from_left, float))
     fs.write("T", np.asarray(rig.T_right_from_left_mm, float).reshape(3, 1))
-    fs.release()
+    text = fs.releaseAndGetString()
+    _refuse_unloadable(lambda: _rig_from_yaml_text(text, path))
+    atomic_write_text(path, text)
+
+
+def _opencv_distortion(cam: ScheimpflugCamera) -> np.ndarray:
+    """OpenCV's 14 coefficients (k1, k2, p1, p2, k3, k4, k5, k6, s1..s4, tau_x, tau_y) of ``cam``, (1, 14)."""
+    dist = np.zeros((1, 14))
+    dist[0, :4] = cam.k1, cam.k2, cam.p1, cam.p2
+    dist[0, 12:] = cam.alpha_rad, cam.beta_rad
+    return dist
+
+
+def _cv_message(err: BaseException) -> str:
+    """The useful part of an OpenCV error ("... error: (-212:Parsing error) ... in function '...'")."""
+    err = err.__cause__ or err
+    text = str(err).strip().splitlines()[0] if str(err).strip() else type(err).__name__
+    return text.split(" error: ", 1)[-1]
+
+
+def _filenode_value(node, file, depth: int = 0):
+    """A cv2.FileNode as plain Python values (maps -> dict, sequences -> list, int, float, str, None)."""
+    if depth > 64:
+        raise FileFormatError(file, "", "is not a usable OpenCV YAML file: nested too deeply")
+    if node.isMap():
+        return {k: _filenode_value(node.getNode(k), file, depth + 1) for k in node.keys()}
+    if node.isSeq():
+        return [_filenode_value(node.at(i), file, depth + 1) for i in range(node.size())]
+    if node.isInt():
+        return int(node.real())
+    if node.isReal():
+        return float(node.real())
+    if node.isString():
+        return node.string()
+    return None
+
+
+#: OpenCV's YAML parser recurses once per nesting level and overflows the stack (a segmentation fault, not an
+#: exception) somewhere between 20 000 and 50 000 levels (``a: [[[[...``, ``- - - ...``). Texts that could nest
+#: that deep are refused before parsing: at most this many bytes (block nesting by indentation then stays
+#: below ~1 500 levels) and at most MAX_YAML_NESTING_TOKENS characters that can open a level. A calibration
+#: YAML has ~2.5 kB and ~100 such characters.
+MAX_YAML_BYTES = 1 << 20
+MAX_YAML_NESTING_TOKENS = 10_000
+
+
+def _read_opencv_yaml(text: str, path) -> Node:
+    if len(text.encode("utf-8", "surrogatepass")) > MAX_YAML_BYTES:
+        raise FileFormatError(path, "", f"is larger than {MAX_YAML_BYTES} bytes: not a calibration YAML")
+    tokens = sum(text.count(c) for c in "[{-:?")
+    if tokens > MAX_YAML_NESTING_TOKENS:
+        raise FileFormatError(path, "", f"has {tokens} of the characters '[{{-:?' (more than "
+                                        f"{MAX_YAML_NESTING_TOKENS}): too deeply nested for a calibration YAML")
+    try:
+        fs = cv2.FileStorage(text, cv2.FILE_STORAGE_READ | cv2.FILE_STORAGE_MEMORY | cv2.FILE_STORAGE_FORMAT_YAML)
+    except (cv2.error, SystemError) as err:
+        raise FileFormatError(path, "", f"is not an OpenCV FileStorage YAML file: {_cv_message(err)}") from None
+    try:
+        if not fs.isOpened():
+            raise FileFormatError(path, "", "is not an OpenCV FileStorage YAML file")
+        value = _filenode_value(fs.root(), path)
+    except (cv2.error, SystemError, UnicodeError) as err:
+        raise FileFormatError(path, "", f"is not a usable OpenCV FileStorage YAML file: {_cv_message(err)}") from None
+    finally:
+        fs.release()
+    return Node(value, path)
+
+
+def _opencv_matrix(node: Node, shape: tuple[int, int], *, bound: float = 1e12) -> np.ndarray:
+    """An ``!!opencv-matrix`` map (rows, cols, dt, data) of exactly ``shape``, as float64."""
+    node.mapping()
+    rows, cols = node["rows"].integer(0, 10 ** 6), node["cols"].integer(0, 10 ** 6)
+    if (rows, cols) != shape:
+        raise node.error(f"must be a {shape[0]} x {shape[1]} matrix, got {rows} x {cols}")
+    node["dt"].string(("d", "f"))
+    return node["data"].array((rows * cols,), bound=bound).reshape(shape)
+
+
+def _close(a, b) -> bool:
+    a, b = np.asarray(a, float), np.asarray(b, float)
+    return bool(np.all(np.abs(a - b) <= 1e-9 * np.maximum(1.0, np.abs(b))))
+
+
+def _rig_from_yaml_text(text: str, path) -> CalibratedRig:
+    doc = _read_opencv_yaml(text, path)
+    doc.mapping()
+    _check_format(doc["format"])
+    model = _model(doc["model"])
+    width, height = doc["image_width"].integer(1, MAX_IMAGE_PX), doc["image_height"].integer(1, MAX_IMAGE_PX)
+    cams = {}
+    for side, name in (("1", "left"), ("2", "right")):
+        values = {n: _intrinsic(doc[f"{name}_{n}"], n) for n in INTRINSIC_NAMES}
+        tilt_model = doc[f"{name}_tilt_model"].string(TILT_MODELS)
+        cam = _camera(values, width, height, tilt_model, model, doc, lambda n: f"{name}_{n}")
+        # K and D are OpenCV's view of the same camera: if present they must agree with the named scalars,
+        # which are what is loaded (an edit of K1 alone would otherwise be ignored silently).
+        for key, shape, expected in ((f"K{side}", (3, 3), cam.K), (f"D{side}", (1, 14), _opencv_distortion(cam))):
+            node = doc.get(key)
+            if node is not None and not _close(_opencv_matrix(node, shape), expected):
+                raise node.error(f"disagrees with the {name}_* parameters, which are what is loaded "
+                                 f"(edit both, or remove {key})")
+        cams[name] = cam
+    R = Node(_opencv_matrix(doc["R"], (3, 3)).tolist(), path, "R").rotation()
+    T = _translation(Node(_opencv_matrix(doc["T"], (3, 1)).tolist(), path, "T"), (3, 1))
+    return CalibratedRig(model, cams["left"], cams["right"], R, T)
 
 
 def load_opencv_yaml(path: str | Path) -> CalibratedRig:
-    """Read back a YAML written by :func:`export_opencv_yaml`."""
-    fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)
-    if not fs.isOpened():
-        raise ValueError(f"cannot read {path} as an OpenCV FileStorage file")
-    try:
-        w, h = int(fs.getNode("image_width").real()), int(fs.getNode("image_height").real())
-        cams = {}
-        for name in ("left", "right"):
-            values = {n: fs.getNode(f"{name}_{n}").real() for n in INTRINSIC_NAMES}
-            cams[name] = ScheimpflugCamera(**values, width=w, height=h,
-                                           tilt_model=fs.getNode(f"{name}_tilt_model").string() or "rmm")
-        R, T = fs.getNode("R").mat(), fs.getNode("T").mat()
-        model = fs.getNode("model").string()
-    finally:
-        fs.release()
-    if R is None or T is None:
-        raise ValueError(f"{path}: missing R or T")
-    return CalibratedRig(model, cams["left"], cams["right"], np.asarray(R, float), np.asarray(T, float).ravel())
+    """Read back a YAML written by :func:`export_opencv_yaml` (OpenCV ``FileStorage``), validated.
+
+    Every key the rig is built from is required (``format``, ``model``, ``image_width``, ``image_height``,
+    ``{left,right}_{tilt_model, fx, ..., p2}``, ``R``, ``T``); ``K1``/``D1``/``K2``/``D2`` are optional but must
+    agree with the named parameters. Raises FileFormatError (a ValueError) naming the file and the key.
+    """
+    return _rig_from_yaml_text(read_text_file(path, "calibration file", max_bytes=MAX_YAML_BYTES), path)

@@ -9,7 +9,12 @@ propagation. One module per algorithm:
 - :mod:`.guide` — reliability-guided propagation over the POI grid;
 - :mod:`.grid` — POIs from ROI, mask, subset and step;
 - :mod:`.correlate` — the entry point :func:`correlate` and :class:`DICResult`.
+
+numba's on-disk cache of these kernels is keyed on the sources of the whole package (:mod:`._numba_cache`,
+imported first, before any kernel is defined): an edit in any module recompiles every kernel that might
+inline it.
 """
+from . import _numba_cache  # noqa: F401  (must precede the modules that define kernels)
 from .correlate import DICResult, DICSettings, correlate
 from .grid import PoiGrid, poi_grid
 from .initial import Seed

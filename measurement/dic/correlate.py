@@ -17,6 +17,8 @@ import numba
 import numpy as np
 from scipy import ndimage
 
+from measurement.files import atomic_writer
+
 from . import bspline
 from .grid import PoiGrid, check_subset_size, poi_grid
 from .guide import band_regions, propagate
@@ -161,11 +163,13 @@ class DICResult:
         return out
 
     def to_csv(self, path: str | Path) -> Path:
-        """Write ``x,y,u,v,zncc,iterations,status,status_name`` and the shape parameters, one row per point."""
+        """Write ``x,y,u,v,zncc,iterations,status,status_name`` and the shape parameters, one row per point.
+
+        The file is written atomically (:func:`measurement.files.atomic_writer`): whole or not at all.
+        """
         path = Path(path)
-        path.parent.mkdir(parents=True, exist_ok=True)
         names = [Status(int(s)).name.lower() for s in self.status]
-        with path.open("w", newline="") as handle:
+        with atomic_writer(path, "w", newline="") as handle:
             writer = csv.writer(handle)
             writer.writerow(["x", "y", "u", "v", "zncc", "iterations", "status", "status_name",
                              *PARAMETER_NAMES[1:6], *PARAMETER_NAMES[7:]])
@@ -280,6 +284,37 @@ def _default_min_std(values: np.ndarray) -> float:
     return max(0.005 * float(high - low), 1e-12)
 
 
+def check_seed_points(seed_points_xy, image_shape: tuple[int, int]) -> list[tuple[float, float]]:
+    """The user's seed points as (x, y) floats, each finite and inside the image; ValueError naming the point."""
+    if seed_points_xy is None:
+        return []
+    rows, cols = int(image_shape[0]), int(image_shape[1])
+    points = []
+    for point in seed_points_xy:
+        try:
+            x, y = (float(v) for v in point)
+        except (TypeError, ValueError):
+            raise ValueError(f"a seed point must be two numbers (x, y), got {point!r}") from None
+        if not (np.isfinite(x) and np.isfinite(y)):
+            raise ValueError(f"seed point ({x:g}, {y:g}) is not finite")
+        if not (0 <= x <= cols - 1 and 0 <= y <= rows - 1):
+            raise ValueError(f"seed point ({x:g}, {y:g}) px is outside the {cols} x {rows} px image "
+                             f"(0 <= x <= {cols - 1}, 0 <= y <= {rows - 1})")
+        points.append((x, y))
+    return points
+
+
+def _check_seed_points_reach(grid: PoiGrid, points) -> None:
+    """Every seed point must lie within reach (as :func:`_seed_candidates` takes it) of a point of interest."""
+    xs, ys = grid.x[grid.active], grid.y[grid.active]
+    for x, y in points:
+        distance = (xs - x) ** 2 + (ys - y) ** 2
+        k = int(np.argmin(distance))
+        if distance[k] > (grid.step ** 2) * 2:
+            raise ValueError(f"seed point ({x:g}, {y:g}) px is not near any point of interest (the nearest is at "
+                             f"({int(xs[k])}, {int(ys[k])}) px): put it inside the region of interest and mask")
+
+
 def _seed_candidates(grid: PoiGrid, region: np.ndarray, region_id: int, seed_points_xy) -> list[tuple[int, int]]:
     """Grid nodes of a region to try as seeds: the user's points first, then outward from the region centre."""
     rows, cols = np.nonzero(grid.active & (region == region_id))
@@ -347,9 +382,10 @@ def correlate(reference: np.ndarray, deformed: np.ndarray, settings: DICSettings
     mask : ndarray of bool, optional
         POI centres must fall where it is True.
     seed_points_xy : list of (x, y), optional
-        Preferred seed positions, px (the nearest grid node is used); a ZNCC search gives their guess.
+        Preferred seed positions, px (the nearest grid node is used); a ZNCC search gives their guess. A point
+        that is not finite, lies outside the image or near no point of interest raises ValueError naming it.
     seed_guess_px : (u, v)
-        Centre of the seed search window, px (for displacements larger than ``search_radius_px``).
+        Centre of the seed search window, px (for displacements larger than ``search_radius_px``); finite.
     seeds : list of Seed, optional
         Seeds with their own initial guesses (feature matches, epipolar search, ...); they replace the ZNCC
         search. Each must sit on a grid node.
@@ -380,13 +416,26 @@ def correlate(reference: np.ndarray, deformed: np.ndarray, settings: DICSettings
     deformed = np.asarray(deformed)
     if reference.ndim == 2 and deformed.ndim == 2 and reference.shape != deformed.shape:
         raise ValueError(f"reference image {reference.shape} and deformed image {deformed.shape} differ in size")
+    if reference.ndim == 2:
+        seed_points_xy = check_seed_points(seed_points_xy, reference.shape) or None
+    try:
+        seed_guess_px = tuple(float(v) for v in seed_guess_px)
+    except (TypeError, ValueError):
+        raise ValueError(f"seed_guess_px must be two numbers (u, v), got {seed_guess_px!r}") from None
+    if len(seed_guess_px) != 2 or not np.all(np.isfinite(seed_guess_px)):
+        raise ValueError(f"seed_guess_px must be two finite numbers (u, v) px, got {seed_guess_px!r}")
+    if reference.ndim == 2 and (abs(seed_guess_px[0]) >= reference.shape[1]
+                                or abs(seed_guess_px[1]) >= reference.shape[0]):
+        raise ValueError(f"seed_guess_px ({seed_guess_px[0]:g}, {seed_guess_px[1]:g}) px moves the seed search outside "
+                         f"the {reference.shape[1]} x {reference.shape[0]} px image")
     if ref is None:
         ref = prepare_image(reference, settings.interpolation, True, "reference", settings.lowpass_sigma_px)
     dfm = prepare_image(deformed, settings.interpolation, False, "deformed", settings.lowpass_sigma_px)
     timings["prefilter"] = time.perf_counter() - start
 
     if grid is None:
-        grid = poi_grid(reference.shape, settings.subset_size, settings.step, roi=roi, mask=mask)
+        grid = poi_grid(reference.shape, settings.subset_size, settings.step, roi=roi, mask=mask,
+                        interpolation=settings.interpolation)
     elif grid.subset_size != settings.subset_size:
         raise ValueError(f"grid subset size {grid.subset_size} differs from settings.subset_size "
                          f"{settings.subset_size}")
@@ -431,6 +480,8 @@ def correlate(reference: np.ndarray, deformed: np.ndarray, settings: DICSettings
         region = band_regions(grid.shape, settings.regions)
         n_regions = int(region.max()) + 1
         if seeds is None:
+            if seed_points_xy:
+                _check_seed_points_reach(grid, seed_points_xy)
             found = find_seeds(ref.values, dfm.values, grid, region, n_regions, settings, seed_points_xy,
                                seed_guess_px)
         else:

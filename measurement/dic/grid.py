@@ -4,12 +4,18 @@ A POI is an integer pixel ``(x, y)`` (column, row) at the centre of a square sub
 grid keeps its 2-D layout so reliability-guided propagation can walk from a point to its four neighbours.
 The region of interest selects POI *centres*; a subset may reach outside the ROI (that is what lets a DIC
 measure up to the ROI edge), but a subset that leaves the image gets the OUT_OF_IMAGE status.
+
+Without a ROI the grid keeps every subset, and the interpolant's support around it, inside the image for
+any motion of less than a pixel (:func:`interpolation_margin_px`), so a default grid has no OUT_OF_IMAGE
+point at zero displacement.
 """
 from __future__ import annotations
 
 from dataclasses import dataclass
 
 import numpy as np
+
+from .bspline import degree_of, support_margin
 
 
 @dataclass(frozen=True)
@@ -57,8 +63,21 @@ def check_subset_size(subset_size: int) -> int:
     return subset_size
 
 
+def interpolation_margin_px(interpolation: str | int = "biquintic") -> int:
+    """Pixels the B-spline needs between a subset's edge and the image border, 3 (biquintic) or 2 (bicubic).
+
+    IC-GN samples the deformed image at a point ``x`` only where the spline's whole support is inside the
+    image: ``lo <= x < cols - hi`` with ``(lo, hi)`` = (2, 3) for the quintic, (1, 2) for the cubic spline
+    (:func:`.bspline.support_margin`), else the point is OUT_OF_IMAGE. A subset edge pixel ``m`` pixels from
+    the border may therefore move by anything less than one pixel, either way, when ``m = hi = lo + 1``.
+    """
+    low, high = support_margin(degree_of(interpolation))
+    return max(low + 1, high)
+
+
 def poi_grid(image_shape: tuple[int, int], subset_size: int, step: int,
-             roi: tuple[int, int, int, int] | None = None, mask: np.ndarray | None = None) -> PoiGrid:
+             roi: tuple[int, int, int, int] | None = None, mask: np.ndarray | None = None,
+             interpolation: str | int = "biquintic") -> PoiGrid:
     """Regular POI grid over a rectangle and/or mask.
 
     Parameters
@@ -71,9 +90,12 @@ def poi_grid(image_shape: tuple[int, int], subset_size: int, step: int,
         Grid spacing, px (>= 1).
     roi : (x0, y0, x1, y1), optional
         Rectangle of POI centres, px, ``x0 <= x < x1``, ``y0 <= y < y1``. None: the whole image less a border of
-        M pixels (every subset then fits in the image).
+        ``M + interpolation_margin_px(interpolation)`` pixels, starting exactly there: every subset and its
+        interpolation support then stay in the image for any motion below one pixel.
     mask : ndarray of bool, shape (rows, cols), optional
         POI centres must also fall where the mask is True.
+    interpolation : {'biquintic', 'bicubic'} or {5, 3}
+        The interpolant the default ROI leaves room for (biquintic, the wider, unless told).
 
     Returns
     -------
@@ -86,7 +108,13 @@ def poi_grid(image_shape: tuple[int, int], subset_size: int, step: int,
     rows, cols = int(image_shape[0]), int(image_shape[1])
     half = subset_size // 2
     if roi is None:
-        x0, y0, x1, y1 = half, half, cols - half, rows - half
+        border = half + interpolation_margin_px(interpolation)
+        x0, y0, x1, y1 = border, border, cols - border, rows - border
+        if x1 <= x0 or y1 <= y0:
+            raise ValueError(f"the {cols} x {rows} px image is too small for a {subset_size} px subset: a "
+                             f"point of interest needs {border} px to each border ({half} px of half subset "
+                             f"and {border - half} px for the interpolation), i.e. an image of at least "
+                             f"{2 * border + 1} x {2 * border + 1} px; choose a smaller subset")
     else:
         if len(roi) != 4:
             raise ValueError(f"roi must be (x0, y0, x1, y1), got {roi!r}")

@@ -21,6 +21,7 @@ import numpy as np
 from tqdm import tqdm
 
 from measurement.dic import DICSettings
+from measurement.files import atomic_write_text, atomic_writer
 from measurement.image_io import read_grey
 from measurement.rigid import fit_rigid, remove_rigid_motion
 from measurement.stereo_dic import StereoMatchError, measure_state, reference_shape
@@ -28,6 +29,7 @@ from measurement.stereo_io import write_state_csv, write_state_vtk
 from measurement.strain import surface_strain, virtual_strain_gauge_px
 from workbench.experiments.bending_scenes import BENDING_LOADS_N, load_bending_truth, render_bending
 from workbench.experiments.rigid_motion import _face_roi, _finite_or_none, _rig_for_name
+from workbench.manifest import complete_manifest
 from workbench.rigs import paper_values, scheimpflug_design_report
 
 #: Default strain window (points per side of the least-squares fit): VSG = 14 * 5 + 65 = 135 px (~4.7 mm).
@@ -44,7 +46,9 @@ def _grid(values: np.ndarray, grid) -> np.ndarray:
 
 
 def _reusable_truth(images: Path, *, scale, rig_name, lens, seed, spp, loads, noise_grey):
-    if not (images / "truth.json").is_file():
+    """The truth of a complete earlier render with these settings (its manifest, written last, lists files that
+    are all present), else None: a half-written folder is rendered again."""
+    if complete_manifest(images, "bending") is None or not (images / "truth.json").is_file():
         return None
     truth = load_bending_truth(images)
     info = truth.info
@@ -96,12 +100,12 @@ def reproduce_bending(out_dir: str | Path, *, scale: float = 1.0, rig_name: str 
     out_dir = Path(out_dir)
     loads = np.asarray(loads_N, dtype=float)
     images = out_dir / "images"
+    rig, rig_text = _rig_for_name(calib, rig_name, scale, out_dir, seed)   # a bad calibration file: before rendering
     truth = _reusable_truth(images, scale=scale, rig_name=rig_name, lens=lens, seed=seed, spp=spp, loads=loads,
                             noise_grey=noise_grey)
-    if truth is None:
+    if truth is None:     # the experiment owns its image folder: an earlier or half-written render is replaced
         truth = render_bending(rig_name, images, scale=scale, lens=lens, spp=spp, seed=seed, noise_grey=noise_grey,
-                               loads_N=loads, progress=progress)
-    rig, rig_text = _rig_for_name(calib, rig_name, scale, out_dir, seed)
+                               loads_N=loads, progress=progress, overwrite=True)
     settings = DICSettings(subset_size=subset_size, step=step, order=2)
     roi = _overlap_roi(truth, _face_roi(_FacePoses(truth), subset_size // 2), subset_size // 2, step)
     left_ref = read_grey(images / truth.files[0]["left"])
@@ -134,8 +138,8 @@ def reproduce_bending(out_dir: str | Path, *, scale: float = 1.0, rig_name: str 
         start = time.perf_counter()
         try:
             state = measure_state(rig.left, rig.right, rig.R_right_from_left, rig.T_right_from_left_mm, shape,
-                                  left_ref, left_def, right_def, settings)
-        except StereoMatchError as error:      # a state that cannot be matched is named and skipped
+                                  left_ref, left_def, right_def, settings, name=f"state {k} ({load:g} N)")
+        except StereoMatchError as error:      # a state that cannot be matched (or fails the sanity check) is skipped
             rows.append({"state": k, "load_N": load, "error": f"{truth.files[k]}: {error}"})
             continue
         stereo_s = time.perf_counter() - start
@@ -186,6 +190,7 @@ def reproduce_bending(out_dir: str | Path, *, scale: float = 1.0, rig_name: str 
         row = {"state": k, "load_N": load, "points": int(ok.sum()), "points_total": int(ok.size),
                "stereo_s": round(stereo_s, 2), "strain_s": round(strain_s, 3),
                "median_residual_px": float(np.nanmedian(state.residual_px[ok])),
+               "p95_residual_px": state.quality.p95_residual_px,
                "U_rmse_um": [_rms(1e3 * err[:, i]) for i in range(3)],
                "U_max_um": [float(np.nanmax(np.abs(1e3 * err[:, i]))) for i in range(3)],
                "U_rmse_rigid_removed_um": [_rms(1e3 * err_def[:, i]) for i in range(3)],
@@ -226,11 +231,12 @@ def reproduce_bending(out_dir: str | Path, *, scale: float = 1.0, rig_name: str 
                "states": rows}
     if rig_name == "scheimpflug":
         metrics["scheimpflug_design"] = scheimpflug_design_report()
+    # the FE truth against beam theory and a mesh-refinement pair, at the goal load
+    from scenes.fields import three_point_bending_report
+    metrics["fe_verification"] = three_point_bending_report(truth.beam, load_N=1800.0)
     from workbench.experiments.bending_report import write_bending_report
     write_bending_report(out_dir, metrics, maps)          # adds metrics["goals"]
-    tmp = out_dir / "metrics.json.tmp"
-    tmp.write_text(json.dumps(metrics, indent=2))
-    tmp.replace(out_dir / "metrics.json")
+    atomic_write_text(out_dir / "metrics.json", json.dumps(metrics, indent=2))
     return metrics
 
 
@@ -262,9 +268,7 @@ class _FacePoses:
 
 def _write_strain_csv(path: Path, grid, strain, magnitude_exact, area_exact) -> None:
     """Per-node strain: grid position, left-image pixel, measured E11 E22 E12, E1 E2, magnitude, area change."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_suffix(".csv.tmp")
-    with tmp.open("w", newline="") as handle:
+    with atomic_writer(path, "w", newline="") as handle:
         w = csv.writer(handle)
         w.writerow(["row", "col", "x", "y", "E11", "E22", "E12", "E1", "E2", "magnitude", "area_change",
                     "magnitude_exact", "area_change_exact"])
@@ -275,4 +279,3 @@ def _write_strain_csv(path: Path, grid, strain, magnitude_exact, area_exact) -> 
                                                    strain.E1[i, j], strain.E2[i, j], strain.magnitude[i, j],
                                                    strain.area_change[i, j], magnitude_exact[i, j],
                                                    area_exact[i, j])])
-    tmp.replace(path)

@@ -5,6 +5,8 @@ from pathlib import Path
 
 import numpy as np
 
+from measurement.files import atomic_write_text
+from workbench.manifest import save_figure
 from workbench.rigs import paper_values
 
 #: Goals at the 1800 N state (issue: displacement in um, strain as a fraction of the peak truth strain, mm).
@@ -55,7 +57,7 @@ def _fig7(path: Path, load: float, m: dict) -> None:
     fig.suptitle(f"Fig 7 at {load:g} N: displacement after mean rigid-body motion removal (left camera frame)",
                  fontsize=10)
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    save_figure(fig, path, dpi=110)
     plt.close(fig)
 
 
@@ -78,7 +80,7 @@ def _fig8(path: Path, load: float, m: dict, vsg_px: int) -> None:
         ax.set_xlabel("specimen x (mm)", fontsize=7)
     fig.suptitle(f"Fig 8 at {load:g} N", fontsize=10)
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    save_figure(fig, path, dpi=110)
     plt.close(fig)
 
 
@@ -105,7 +107,7 @@ def _curves(path: Path, rows: list[dict]) -> None:
         ax.grid(alpha=0.3)
         ax.legend(fontsize=7)
     fig.tight_layout()
-    fig.savefig(path, dpi=120)
+    save_figure(fig, path, dpi=120)
     plt.close(fig)
 
 
@@ -167,12 +169,31 @@ def write_bending_report(out_dir: Path, metrics: dict, maps: dict) -> None:
                   f"| area change: top compressed, bottom stretched | signs | top {1e6 * g['area_change_top_compressed_bottom_stretched'][0][0]:+.1f} µε, "
                   f"bottom {1e6 * g['area_change_top_compressed_bottom_stretched'][0][1]:+.1f} µε | "
                   f"{'yes' if g['area_change_top_compressed_bottom_stretched'][1] else 'NO'} |", ""]
+    fe = metrics.get("fe_verification")
+    if fe:
+        t, f, ref = fe["timoshenko"], fe["fe"], fe["refinement"]
+        lines += ["## The FE truth against beam theory (1800 N)", "",
+                  "| figure | FE | beam theory | FE vs theory |", "|---|---|---|---|",
+                  f"| mid-span deflection, neutral axis relative to the supports (mm) | {f['midspan_deflection_mm']:.5f} | "
+                  f"{t['total_mm']:.5f} (Timoshenko: bending {t['bending_mm']:.5f} + shear {t['shear_mm']:.5f}) | "
+                  f"{f['midspan_deflection_vs_timoshenko_pct']:+.2f} % (goal ±2 %) |"]
+        for e in fe["outer_fibre_strain"]:
+            lines.append(f"| outer-fibre ε_xx at x = {e['x_mm']:+g}, y = {e['y_mm']:+g} mm (µε) | {1e6 * e['fe']:.1f} | "
+                         f"{1e6 * e['theory']:.1f} (M c / E I) | {e['error_pct']:+.2f} % (goal ±3 %) |")
+        lines += ["", f"Mesh refinement: elements {ref['element_mm'][0]:g} -> {ref['element_mm'][1]:g} mm change the "
+                  f"mid-span deflection by {ref['change_pct']:+.3f} % (goal < 0.5 %; the 2.5 -> 1.25 mm pair changes it by "
+                  "0.001 %, `pytest -m slow tests/test_fields.py`). The beam-theory goals are missed: this beam is short "
+                  "(span / height 3.3) and the loading nose's and supports' local fields reach the ±25 mm sections. An "
+                  "independent plane-stress FE of the full beam (P2 triangles) agrees with the 3-D FE to 0.1 % on every "
+                  "figure and misses beam theory by the same amounts; the same 3-D model meets Timoshenko to 0.07 % on a "
+                  "slender beam (tests/test_fields.py). Section resultants at ±25 mm equal statics (moment "
+                  f"{fe['section'][0]['moment_Nmm']:.1f} vs {fe['section'][0]['moment_theory_Nmm']:.1f} N·mm).", ""]
     e = metrics["reference_3d_error_um"]
     lines += [f"Reference shape: {metrics['reference_points_triangulated']} / {metrics['points']} points triangulated, "
               f"{e['aligned_rms']:.3f} µm RMS from the true material points after one rigid alignment (max "
               f"{e['aligned_max']:.3f} µm); reference match + triangulation {metrics['reference_s']} s.", "",
               "## Per load", "",
-              "| load (N) | points | U / V / W RMSE (µm) | U / V / W max (µm) | truth max |u| (µm) | strain RMSE vs window / exact (µε) | peak truth strain (µε) | % of peak | neutral axis meas / truth (mm) | stereo + strain (s) |",
+              "| load (N) | points | U / V / W RMSE (µm) | U / V / W max (µm) | truth max ‖u‖ (µm) | strain RMSE vs window / exact (µε) | peak truth strain (µε) | % of peak | neutral axis meas / truth (mm) | stereo + strain (s) |",
               "|---|---|---|---|---|---|---|---|---|---|"]
     for r in metrics["states"]:
         if "error" in r:
@@ -232,4 +253,4 @@ def write_bending_report(out_dir: Path, metrics: dict, maps: dict) -> None:
         lines += [f"Largest defocus blur over the visible face: left {t['max_defocus_blur_px']['left']:.2f} px, right "
                   f"{t['max_defocus_blur_px']['right']:.2f} px (plane of sharp focus {t['focus_plane_to_face_deg']['left']:.2f}° "
                   f"/ {t['focus_plane_to_face_deg']['right']:.2f}° from the face).", ""]
-    (out_dir / "report.md").write_text("\n".join(lines))
+    atomic_write_text(out_dir / "report.md", "\n".join(lines))

@@ -19,9 +19,10 @@ import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 
-import cv2
 import numpy as np
 from tqdm import tqdm
+
+from measurement.files import atomic_write_image, atomic_write_text
 
 from scenes.camera import SensorSpec
 from scenes.fields import ThreePointBending, three_point_bending_field
@@ -30,6 +31,7 @@ from scenes.render import render_view
 from scenes.specimens import BendingSpecimen
 from scenes.truth import focal_length_for_focus_mm, intersect_deformed_front_face, pixel_rays, project_points
 from workbench.experiments.checkerboard_views import EXPOSURE_GREY, sensor_spec_for
+from workbench.manifest import complete_folder, prepare_folder
 from workbench.experiments.rigid_motion_scenes import (BLUR_WARNING_PX, check_specimen_in_view, face_blur_px,
                                                        focus_plane_angle_deg, specimen_reference_pose)
 from workbench.rigs import DEFAULT_F_NUMBER, StereoRig, get_rig
@@ -178,8 +180,9 @@ def bending_truth(rig: StereoRig, *, lens: str = "thin", f_number: float | None 
 def render_bending(rig: StereoRig | str, out_dir, scale: float = 1.0, lens: str = "thin", spp: int = 64,
                    seed: int = 0, noise_grey: float = 1.0, loads_N=BENDING_LOADS_N, *, f_number: float | None = None,
                    specimen: BendingSpecimen | None = None, beam: ThreePointBending | None = None,
-                   progress: bool = True) -> BendingTruth:
-    """Render every load state in both cameras: ``left_KK.png``, ``right_KK.png`` and ``truth.json``.
+                   progress: bool = True, overwrite: bool = False) -> BendingTruth:
+    """Render every load state in both cameras: ``left_KK.png``, ``right_KK.png``, ``truth.json`` and
+    ``manifest.json`` (truth and manifest last: a folder with a manifest is complete).
 
     Parameters
     ----------
@@ -187,6 +190,8 @@ def render_bending(rig: StereoRig | str, out_dir, scale: float = 1.0, lens: str 
     lens : "thin" (the rig's lenses; for a rig without lenses one focused on the face centre) or "pinhole"
     spp : samples per pixel; seed : seeds speckle, sampler and noise; noise_grey : read noise (8-bit grey)
     loads_N : state 0 is the reference (default: 20 N, then 200 -> 2000 N by 200 N)
+    overwrite : replace an earlier dataset in ``out_dir`` (deletes exactly the files its manifest lists); without
+        it such a folder is refused (:class:`workbench.manifest.DatasetFolderError`)
     """
     rig_scale = None
     if isinstance(rig, str):
@@ -198,9 +203,10 @@ def render_bending(rig: StereoRig | str, out_dir, scale: float = 1.0, lens: str 
     noise = SensorNoise(read_noise_grey=noise_grey, bit_depth=8)
     truth = bending_truth(rig, lens=lens, f_number=f_number, loads_N=loads_N, specimen=specimen, beam=beam, seed=seed)
     out_dir = Path(out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
-    texture = truth.specimen.texture()
     digits = max(2, len(str(len(truth.loads_N) - 1)))
+    planned = [f"{side}_{k:0{digits}d}.png" for k in range(len(truth.loads_N)) for side in SIDES]
+    prepare_folder(out_dir, "bending", planned + ["truth.json"], overwrite=overwrite)
+    texture = truth.specimen.texture()
     files = []
     for k in tqdm(range(len(truth.loads_N)), desc=f"rendering bending ({lens})", disable=not progress):
         surfaces = truth.specimen.surfaces(*truth.pose, texture=texture, displacement_mm=truth.field(k))
@@ -210,9 +216,7 @@ def render_bending(rig: StereoRig | str, out_dir, scale: float = 1.0, lens: str 
             result = render_view(truth.specs[side], *truth.camera_poses[side], surfaces, spp=spp, seed=image_seed,
                                  exposure_grey=EXPOSURE_GREY[8])
             names[side] = f"{side}_{k:0{digits}d}.png"
-            image = to_image_dtype(noise.apply(result.image_grey, seed=image_seed), 8)
-            if not cv2.imwrite(str(out_dir / names[side]), image):
-                raise OSError(f"could not write {out_dir / names[side]}")
+            atomic_write_image(out_dir / names[side], to_image_dtype(noise.apply(result.image_grey, seed=image_seed), 8))
         files.append(names)
     truth.files = files
     truth.info.update(render={"spp": int(spp), "seed": int(seed), "bit_depth": 8, "read_noise_grey": float(noise_grey),
@@ -222,9 +226,10 @@ def render_bending(rig: StereoRig | str, out_dir, scale: float = 1.0, lens: str 
                            "T_right_from_left_mm": np.asarray(rig.T_right_from_left_mm).tolist(),
                            "pixel_pitch_mm": rig.pixel_pitch_mm,
                            "intrinsics": {side: rig.camera(side).to_dict() for side in SIDES}})
-    tmp = out_dir / "truth.json.tmp"
-    tmp.write_text(json.dumps(_truth_to_json(truth), indent=1))
-    tmp.replace(out_dir / "truth.json")                     # the truth appears whole, after every image
+    atomic_write_text(out_dir / "truth.json", json.dumps(_truth_to_json(truth), indent=1))   # after every image
+    complete_folder(out_dir, "bending", [n for names in files for n in names.values()] + ["truth.json"],
+                    {"rig": rig.name, "scale": rig_scale, "lens": lens, **truth.info["render"],
+                     "loads_N": [float(v) for v in truth.loads_N]})
     return truth
 
 
@@ -253,18 +258,21 @@ def _truth_to_json(truth: BendingTruth) -> dict:
 
 
 def load_bending_truth(out_dir) -> BendingTruth:
-    """Read ``truth.json`` written by :func:`render_bending` back into a :class:`BendingTruth`."""
-    path = Path(out_dir) / "truth.json"
-    if not path.is_file():
-        raise FileNotFoundError(f"no truth.json in {out_dir}")
-    d = json.loads(path.read_text())
-    specimen = BendingSpecimen(**{k: v for k, v in d["specimen"].items() if k != "type"})
-    beam = ThreePointBending(**{k: v for k, v in d["beam"].items() if k != "type"})
-    specs = {side: SensorSpec(**d["cameras"][side]["sensor_spec"]) for side in SIDES}
-    camera_poses = {side: (np.array(d["cameras"][side]["R_cam_from_world"]),
-                           np.array(d["cameras"][side]["t_cam_from_world_mm"])) for side in SIDES}
-    info = {k: v for k, v in d.items() if k not in ("about", "specimen", "beam", "cameras", "R_world_from_specimen",
-                                                    "t_world_from_specimen_mm", "states")}
-    return BendingTruth(specimen, beam, specs, camera_poses,
-                        (np.array(d["R_world_from_specimen"]), np.array(d["t_world_from_specimen_mm"])),
-                        np.array([s["load_N"] for s in d["states"]]), [s["files"] for s in d["states"]], info)
+    """Read ``truth.json`` written by :func:`render_bending` back into a :class:`BendingTruth`.
+
+    Raises FileNotFoundError when there is no ``truth.json`` and :class:`measurement.schema.FileFormatError`
+    (a ValueError naming the file and the key) for anything malformed (:mod:`workbench.truth_schema`).
+    """
+    from workbench import truth_schema as ts
+
+    doc = ts.read_truth(out_dir)
+    specimen = ts.specimen(doc["specimen"])
+    beam = ts.typed(doc["beam"], ThreePointBending, "ThreePointBending", ts.BEAM_RANGES)
+    specs, camera_poses = ts.cameras(doc)
+    pose = (doc["R_world_from_specimen"].rotation(), ts.position(doc["t_world_from_specimen_mm"]))
+    states = ts.states(doc)
+    loads_N = np.array([s["load_N"].number(-1e7, 1e7, unit="N") for s in states])
+    files = [ts.files(s) for s in states]
+    info = ts.info(doc, ("about", "specimen", "beam", "cameras", "R_world_from_specimen", "t_world_from_specimen_mm",
+                         "states"), LENSES)
+    return BendingTruth(specimen, beam, specs, camera_poses, pose, loads_N, files, info)

@@ -24,12 +24,14 @@ from measurement.calibration.detection import board_points_mm
 from measurement.calibration.images import DetectedPairs, detect_pairs
 from measurement.calibration.io import CalibratedRig, export_opencv_yaml, save_calibration
 from measurement.camera import INTRINSIC_NAMES
+from measurement.files import atomic_write_text
 from measurement.calibration.stepwise import calibrate_stereo
 from measurement.rigid import apply_rigid, fit_rigid
 from measurement.stereo import fit_plane, triangulate
 from scenes.noise import SensorNoise
 from scenes.targets import Checkerboard
 from workbench.experiments.checkerboard_views import board_outline_mm, write_checkerboard_dataset
+from workbench.manifest import complete_manifest, save_figure
 from workbench.poses import random_board_poses
 from workbench.rigs import StereoRig, get_rig, paper_values
 
@@ -86,9 +88,12 @@ def plane_fits_of_detected_boards(rig_cal: CalibratedRig, pairs: DetectedPairs) 
 
 
 def _reusable_truth(image_dir: Path, rig: StereoRig, n_views: int, seed: int, spp: int, noise: SensorNoise):
-    """The truth of an earlier render of exactly this dataset in ``image_dir`` (renders are deterministic), or None."""
+    """The truth of an earlier render of exactly this dataset in ``image_dir`` (renders are deterministic), or None.
+
+    Only a complete dataset is reused (its manifest, written last, lists files that are all present).
+    """
     path = image_dir / "truth.json"
-    if not path.is_file():
+    if complete_manifest(image_dir, "checkerboard") is None or not path.is_file():
         return None
     truth = json.loads(path.read_text())
     wanted = {"spp": spp, "seed": seed, "bit_depth": noise.bit_depth, "read_noise_grey": noise.read_noise_grey,
@@ -119,8 +124,9 @@ def reproduce_calibration(out_dir: Path, *, scale: float = 1.0, seed: int = 0, s
     truth = _reusable_truth(out_dir / "images", rig, n_calibration + n_validation, seed, spp, noise)
     reused = truth is not None
     if truth is None:
+        # the experiment owns its image folder: an earlier or half-written render there is replaced
         truth = write_checkerboard_dataset(rig, out_dir / "images", n_calibration + n_validation, seed, spp=spp,
-                                           board=board, noise=noise, progress=progress, poses=poses)
+                                           board=board, noise=noise, progress=progress, poses=poses, overwrite=True)
     t_render = time.perf_counter() - t0
     files = {side: [out_dir / "images" / im["file"] for im in truth["images"] if im["camera"] == side]
              for side in ("left", "right")}
@@ -147,8 +153,7 @@ def reproduce_calibration(out_dir: Path, *, scale: float = 1.0, seed: int = 0, s
                                tilt_guess_right_deg=tilt_guess["right"])
         t_cal = time.perf_counter() - t0
         suffix = "" if model == "rmm" else f"_{model}"
-        save_calibration(cal, out_dir / f"calibration{suffix}.json")
-        export_opencv_yaml(cal, out_dir / f"calibration{suffix}.yaml")
+        _write_calibration_pair(cal, out_dir / f"calibration{suffix}.json", out_dir / f"calibration{suffix}.yaml")
         rig_cal = _as_rig(cal)
         m = {"calibration_s": round(t_cal, 1), "views_used": len(cal_pairs.left_files), "dropped": cal_pairs.dropped,
              "reprojection_rms_px": dict(cal.rms_px),
@@ -160,9 +165,23 @@ def reproduce_calibration(out_dir: Path, *, scale: float = 1.0, seed: int = 0, s
              "validation_exact": score_against_truth(rig_cal, rig, val_points),
              "validation_plane_fit": plane_fits_of_detected_boards(rig_cal, val_pairs)}
         metrics["models"][model] = m
-    (out_dir / "metrics.json").write_text(json.dumps(metrics, indent=1))
+    atomic_write_text(out_dir / "metrics.json", json.dumps(metrics, indent=1))
     write_calibration_report(metrics, out_dir)
     return metrics
+
+
+def _write_calibration_pair(cal, json_path: Path, yaml_path: Path) -> None:
+    """The calibration JSON and its YAML export, both built before either is written, then written together."""
+    import tempfile
+
+    from workbench.manifest import write_texts_together
+
+    with tempfile.TemporaryDirectory(prefix="workbench-calibration-") as tmp:
+        save_calibration(cal, Path(tmp) / "c.json")
+        export_opencv_yaml(cal, Path(tmp) / "c.yaml")
+        texts = {json_path: (Path(tmp) / "c.json").read_text(encoding="utf-8"),
+                 yaml_path: (Path(tmp) / "c.yaml").read_text(encoding="utf-8")}
+    write_texts_together(texts)
 
 
 def write_calibration_report(metrics: dict, out_dir: Path) -> None:
@@ -212,7 +231,7 @@ def write_calibration_report(metrics: dict, out_dir: Path) -> None:
               "3D figures use the exact projections of the validation corners (what the calibration alone costs); "
               "the plane fits use corners detected in the noisy validation images (the paper's check).", "",
               "![plane fit](plane_fit.png)", ""]
-    (Path(out_dir) / "report.md").write_text("\n".join(lines))
+    atomic_write_text(Path(out_dir) / "report.md", "\n".join(lines))
     ex = rmm["validation_plane_fit"]["example"]
     X, dist = np.array(ex["X_left_mm"]), 1e3 * np.array(ex["distance_mm"])
     fig = plt.figure(figsize=(11, 4.5), constrained_layout=True)
@@ -232,5 +251,5 @@ def write_calibration_report(metrics: dict, out_dir: Path) -> None:
     ax2.set_xlabel("corner column")
     ax2.set_ylabel("corner row")
     fig.colorbar(im, ax=ax2)
-    fig.savefig(Path(out_dir) / "plane_fit.png", dpi=110)
+    save_figure(fig, Path(out_dir) / "plane_fit.png", dpi=110)
     plt.close(fig)

@@ -5,15 +5,17 @@ import json
 from dataclasses import dataclass, field
 from pathlib import Path
 
-import cv2
 import numpy as np
 from tqdm import tqdm
+
+from measurement.files import atomic_write_image, atomic_write_text
 
 from scenes.camera import SensorSpec
 from scenes.noise import SensorNoise, to_image_dtype
 from scenes.render import render_view
 from scenes.targets import Checkerboard
 from measurement.camera import ScheimpflugCamera
+from workbench.manifest import complete_folder, prepare_folder
 from workbench.poses import check_in_view, random_board_poses
 from workbench.rigs import StereoRig
 
@@ -76,23 +78,30 @@ def render_board_views(rig: StereoRig, board: Checkerboard, poses, *, spp: int =
 
 def write_checkerboard_dataset(rig: StereoRig, out_dir: Path, n_views: int, seed: int, *, spp: int = 64,
                                board: Checkerboard | None = None, noise: SensorNoise | None = None,
-                               image_format: str = "png", progress: bool = True, poses=None) -> dict:
-    """Render ``n_views`` random stereo poses (or the given ``poses``) and write images plus ``truth.json``."""
+                               image_format: str = "png", progress: bool = True, poses=None,
+                               overwrite: bool = False) -> dict:
+    """Render ``n_views`` random stereo poses (or the given ``poses``) and write images, ``truth.json`` and
+    ``manifest.json`` (:mod:`workbench.manifest`; truth and manifest last: a folder with a manifest is complete).
+
+    A folder holding an earlier dataset is refused (:class:`workbench.manifest.DatasetFolderError`) unless
+    ``overwrite``, which first deletes exactly the files of that dataset.
+    """
     board = board or Checkerboard()
     noise = noise or SensorNoise(read_noise_grey=0.0, electrons_per_grey=None, bit_depth=8)
     if image_format not in ("png", "tiff"):
         raise ValueError(f"image format must be png or tiff, got {image_format!r}")
     out_dir = Path(out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
     if poses is None:
         poses = random_board_poses(rig, board_outline_mm(board), n_views, seed)
+    extension = "png" if image_format == "png" else "tif"
+    names = [f"{side}_{view:03d}.{extension}" for view in range(len(poses)) for side in ("left", "right")]
+    prepare_folder(out_dir, "checkerboard", names + ["truth.json"], overwrite=overwrite)
     images = []
     for bv in render_board_views(rig, board, poses, spp=spp, seed=seed, bit_depth=noise.bit_depth or 8,
                                  progress=progress):
-        name = f"{bv.camera}_{bv.view:03d}.{'png' if image_format == 'png' else 'tif'}"
+        name = f"{bv.camera}_{bv.view:03d}.{extension}"
         noisy = noise.apply(bv.image_grey, seed=seed * 100003 + 2 * bv.view + (bv.camera == "right"))
-        if not cv2.imwrite(str(out_dir / name), to_image_dtype(noisy, noise.bit_depth or 8)):
-            raise OSError(f"could not write {out_dir / name}")
+        atomic_write_image(out_dir / name, to_image_dtype(noisy, noise.bit_depth or 8))
         images.append({
             "file": name, "camera": bv.camera, "view": bv.view,
             "intrinsics": rig.camera(bv.camera).to_dict(),
@@ -114,5 +123,8 @@ def write_checkerboard_dataset(rig: StereoRig, out_dir: Path, n_views: int, seed
                    "read_noise_grey": noise.read_noise_grey, "electrons_per_grey": noise.electrons_per_grey},
         "images": images,
     }
-    (out_dir / "truth.json").write_text(json.dumps(truth, indent=1))
+    atomic_write_text(out_dir / "truth.json", json.dumps(truth, indent=1))
+    complete_folder(out_dir, "checkerboard", [im["file"] for im in images] + ["truth.json"],
+                    {"rig": rig.name, "image_size_px": [rig.left.width, rig.left.height], "views": len(poses),
+                     **truth["render"], "format": image_format})
     return truth

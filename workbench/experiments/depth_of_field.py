@@ -14,6 +14,7 @@ from types import SimpleNamespace
 import numpy as np
 from scipy.optimize import brentq
 
+from measurement.files import atomic_write_image, atomic_write_text
 from measurement.image_quality import mean_intensity_gradient
 from scenes.camera import SensorSpec
 from scenes.noise import SensorNoise, to_image_dtype
@@ -212,6 +213,7 @@ def reproduce_depth_of_field(out_dir, *, scale: float = 1.0, object_tilt_deg: fl
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
+    from workbench.manifest import save_figure
     from workbench.rigs import paper_values
 
     out_dir = Path(out_dir)
@@ -224,12 +226,12 @@ def reproduce_depth_of_field(out_dir, *, scale: float = 1.0, object_tilt_deg: fl
     paper = paper_values()["speckle_quality"]
     st, cv = images["static"]["scheimpflug"], images["static"]["conventional"]
     for name, img in (("scheimpflug", st), ("conventional", cv)):
-        cv2.imwrite(str(out_dir / f"{name}.png"), np.clip(np.rint(img), 0, 255).astype(np.uint8))
+        atomic_write_image(out_dir / f"{name}.png", np.clip(np.rint(img), 0, 255).astype(np.uint8))
     h, w = st.shape
     side = np.hstack([st, np.full((h, max(4, w // 100)), 255.0), cv])
     f = min(1.0, 1400 / side.shape[1])
-    cv2.imwrite(str(out_dir / "side_by_side.png"),
-                cv2.resize(np.clip(side, 0, 255).astype(np.uint8), None, fx=f, fy=f, interpolation=cv2.INTER_AREA))
+    atomic_write_image(out_dir / "side_by_side.png",
+                       cv2.resize(np.clip(side, 0, 255).astype(np.uint8), None, fx=f, fy=f, interpolation=cv2.INTER_AREA))
     figure, axes = plt.subplots(2, 2, figsize=(11, 7))
     for c, name in enumerate(("scheimpflug", "conventional")):
         m = fig[name]["maps"]
@@ -242,17 +244,17 @@ def reproduce_depth_of_field(out_dir, *, scale: float = 1.0, object_tilt_deg: fl
             figure.colorbar(sc, ax=axes[r, c], fraction=0.035)
     figure.suptitle(f"Plate at {object_tilt_deg}°, f/{f_number}: tilted vs untilted sensor, same lens", fontsize=9)
     figure.tight_layout()
-    figure.savefig(out_dir / "dic_maps.png", dpi=110)
+    save_figure(figure, out_dir / "dic_maps.png", dpi=110)
     plt.close(figure)
     metrics = {"object_tilt_deg": object_tilt_deg, "f_number": f_number, "scale": scale, "spp": spp,
                "noise_grey": noise_grey, "subset_px": subset, "step_px": step,
                "paper_mig_scheimpflug": paper["MIG_scheimpflug"], "paper_mig_conventional": paper["MIG_conventional"],
                "cameras": {name: {k: v for k, v in d.items() if k != "maps"} for name, d in fig.items()}}
     metrics["mig_ratio"] = fig["scheimpflug"]["mig"] / fig["conventional"]["mig"]
-    (out_dir / "metrics.json").write_text(json.dumps(metrics, indent=1))
+    atomic_write_text(out_dir / "metrics.json", json.dumps(metrics, indent=1))
     s, c = metrics["cameras"]["scheimpflug"], metrics["cameras"]["conventional"]
     row = lambda label, a, b, fmt: f"| {label} | {fmt.format(a)} | {fmt.format(b)} |"  # noqa: E731
-    (out_dir / "report.md").write_text("\n".join([
+    atomic_write_text(out_dir / "report.md", "\n".join([
         "# Depth of field: Scheimpflug vs untilted sensor, in the instrument's terms", "",
         f"An oblique speckled plate ({object_tilt_deg}° about the camera Y axis, centre at 376 mm) through the same "
         f"thin lens at f/{f_number}, scale {scale} ({w} x {h} px), {spp} spp. The tilted sensor "

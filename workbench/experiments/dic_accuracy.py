@@ -13,9 +13,11 @@ from pathlib import Path
 import numpy as np
 
 from measurement.dic import DICSettings, correlate
+from measurement.files import atomic_write_text
 from scenes.noise import apply_sensor_noise
 from scenes.synthetic_images import (HomogeneousStrain, QuadraticField, Rotation, extent_for_shape,
                                      fourier_shifted_pair, gaussian_speckle, radius_for_speckle_size)
+from workbench.manifest import save_figure
 
 SHIFTS_PX = np.round(np.arange(0.0, 1.01, 0.1), 10)
 #: (label, speckle size px, interpolation, Gaussian pre-filter sigma px)
@@ -183,7 +185,7 @@ def reproduce_dic_accuracy(out_dir: str | Path, progress: bool = True) -> dict:
     shapes = shape_function_cases()
     metrics = {"bias": [{**c.__dict__, "max_abs_px": c.max_abs_px} for c in curves], "bias_vs_speckle_size": sweep,
                "noise": noise, "shape_functions": shapes}
-    (out_dir / "metrics.json").write_text(json.dumps(metrics, indent=2))
+    atomic_write_text(out_dir / "metrics.json", json.dumps(metrics, indent=2))
 
     fig, ax = plt.subplots(figsize=(7, 4.2))
     for c in curves:
@@ -195,7 +197,7 @@ def reproduce_dic_accuracy(out_dir: str | Path, progress: bool = True) -> dict:
     ax.legend(fontsize=7)
     ax.grid(alpha=0.3)
     fig.tight_layout()
-    fig.savefig(out_dir / "bias.png", dpi=130)
+    save_figure(fig, out_dir / "bias.png", dpi=130)
     plt.close(fig)
 
     fig, ax = plt.subplots(figsize=(7, 4.2))
@@ -219,7 +221,7 @@ def reproduce_dic_accuracy(out_dir: str | Path, progress: bool = True) -> dict:
     top.set_xticks([d for d in np.arange(1.5, 4.01, 0.25) if min(fwhm) <= d <= max(fwhm)])
     top.set_xlabel("single-blob FWHM diameter (px)", fontsize=8)
     fig.tight_layout()
-    fig.savefig(out_dir / "bias_vs_speckle_size.png", dpi=130)
+    save_figure(fig, out_dir / "bias_vs_speckle_size.png", dpi=130)
     plt.close(fig)
 
     lines = ["# DIC engine accuracy", "",
@@ -268,5 +270,5 @@ def reproduce_dic_accuracy(out_dir: str | Path, progress: bool = True) -> dict:
     lines += ["", f"First-order undermatching expected on the quadratic field: "
               f"{shapes['first-order undermatching expected for the quadratic field, px']:.4f} px "
               "(a M (M + 1) / 3 at the subset centre).", ""]
-    (out_dir / "report.md").write_text("\n".join(lines))
+    atomic_write_text(out_dir / "report.md", "\n".join(lines))
     return metrics

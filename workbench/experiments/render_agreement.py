@@ -11,9 +11,11 @@ from pathlib import Path
 
 import numpy as np
 
+from measurement.files import atomic_write_text
 from scenes.targets import Checkerboard
 from workbench.agreement import detector_errors, fit_corners
 from workbench.experiments.checkerboard_views import board_outline_mm, render_board_views
+from workbench.manifest import save_figure
 from workbench.poses import random_board_poses
 from workbench.rigs import StereoRig
 
@@ -104,7 +106,7 @@ def write_agreement_report(summary: dict, out_dir: Path) -> None:
 
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
-    (out_dir / "metrics.json").write_text(json.dumps(summary, indent=1))
+    atomic_write_text(out_dir / "metrics.json", json.dumps(summary, indent=1))
     w, h = summary["image_size_px"]
     fig, axes = plt.subplots(1, 2, figsize=(12, 5), constrained_layout=True)
     for ax, (side, e) in zip(axes, summary["cameras"].items()):
@@ -119,7 +121,7 @@ def write_agreement_report(summary: dict, out_dir: Path) -> None:
         ax.set_ylabel("v [px]")
         fig.colorbar(q, ax=ax, label="|rendered - model| [px]")
     fig.suptitle("Rendered corner minus model projection (arrow of 5 % image width = 0.01 px)")
-    fig.savefig(out_dir / "agreement.png", dpi=110)
+    save_figure(fig, out_dir / "agreement.png", dpi=110)
     plt.close(fig)
     lines = ["# Render ⇄ model agreement", "",
              "Every inner corner of rendered checkerboards is compared with where `measurement.camera` projects "
@@ -137,4 +139,4 @@ def write_agreement_report(summary: dict, out_dir: Path) -> None:
               f"analytic patch {2 * summary['patch_half_size_px'] + 1} px square with "
               f"{summary['analytic_supersample']}² samples per pixel. Render {summary['render_s']} s, "
               f"fit {summary['fit_s']} s.", "", "![offsets](agreement.png)", ""]
-    (out_dir / "report.md").write_text("\n".join(lines))
+    atomic_write_text(out_dir / "report.md", "\n".join(lines))

@@ -19,12 +19,14 @@ from tqdm import tqdm
 
 from measurement.calibration.io import CalibratedRig, load_calibration, load_opencv_yaml
 from measurement.dic import DICSettings
+from measurement.files import atomic_write_text
 from measurement.image_io import read_grey
 from measurement.rigid import fit_rigid
-from measurement.stereo_dic import measure_state, reference_shape
+from measurement.stereo_dic import StereoMatchError, measure_state, reference_shape
 from measurement.stereo_io import write_state_csv, write_state_vtk
 from scenes.motion import stage_states_mm
 from workbench.experiments.rigid_motion_scenes import load_truth, render_rigid_motion
+from workbench.manifest import complete_manifest, save_figure
 from workbench.rigs import get_rig, paper_values
 
 
@@ -71,8 +73,12 @@ def _rig_for_name(calib: str, rig_name: str, scale: float, out_dir: Path, seed: 
 
 
 def _reusable_truth(images: Path, *, scale, lens, seed, spp, states):
-    """The truth of renders already in ``images`` if they were made with these settings (else None)."""
-    if not (images / "truth.json").is_file():
+    """The truth of renders already in ``images`` if they were made with these settings (else None).
+
+    Only a complete dataset is reused: its manifest (written after every image and the truth) lists files that
+    are all present; a half-written folder is rendered again.
+    """
+    if complete_manifest(images, "rigid-motion") is None or not (images / "truth.json").is_file():
         return None
     truth = load_truth(images)
     info = truth.info
@@ -113,11 +119,11 @@ def reproduce_rigid_motion(out_dir: str | Path, *, scale: float = 1.0, calib: st
     """Render (or reuse) the states, measure them, score against truth, write the report. Returns the metrics."""
     out_dir = Path(out_dir)
     images = out_dir / "images"
+    rig, rig_text = _rig_for(calib, scale, out_dir, seed)         # a bad calibration file is refused before rendering
     truth = _reusable_truth(images, scale=scale, lens=lens, seed=seed, spp=spp, states=states)
-    if truth is None:
+    if truth is None:     # the experiment owns its image folder: an earlier or half-written render is replaced
         truth = render_rigid_motion("paper", images, scale=scale, lens=lens, spp=spp, seed=seed, states=states,
-                                    progress=progress)
-    rig, rig_text = _rig_for(calib, scale, out_dir, seed)
+                                    progress=progress, overwrite=True)
     settings = DICSettings(subset_size=subset_size, step=step, order=2)
     roi = _face_roi(truth, subset_size // 2)
     left_ref = read_grey(images / truth.files[0]["left"])
@@ -146,8 +152,12 @@ def reproduce_rigid_motion(out_dir: str | Path, *, scale: float = 1.0, calib: st
         left_def = read_grey(images / truth.files[k]["left"])
         right_def = read_grey(images / truth.files[k]["right"])
         start = time.perf_counter()
-        state = measure_state(rig.left, rig.right, rig.R_right_from_left, rig.T_right_from_left_mm, shape, left_ref,
-                              left_def, right_def, settings)
+        try:
+            state = measure_state(rig.left, rig.right, rig.R_right_from_left, rig.T_right_from_left_mm, shape,
+                                  left_ref, left_def, right_def, settings, name=f"state {k}")
+        except StereoMatchError as error:      # a state that cannot be matched (or fails the sanity check) is named
+            rows.append({"state": k, "imposed_mm": float(truth.states_mm[k]), "error": f"{truth.files[k]}: {error}"})
+            continue
         seconds = time.perf_counter() - start
         write_state_csv(out_dir / "points" / f"state_{k:02d}.csv", shape, state)
         write_state_vtk(out_dir / "points" / f"state_{k:02d}.vtk", shape, state)
@@ -158,12 +168,14 @@ def reproduce_rigid_motion(out_dir: str | Path, *, scale: float = 1.0, calib: st
                      "points_total": int(ok.size), "mean_error_um": float(np.mean(error_um)),
                      "mean_abs_error_um": float(np.mean(np.abs(error_um))), "std_um": float(np.std(error_um)),
                      "mean_D_mm": float(np.mean(state.D_mm[ok])), "median_residual_px": float(np.median(state.residual_px[ok])),
+                     "p95_residual_px": state.quality.p95_residual_px,
                      # the mean vector error shows a bias that |U| (always >= 0) hides near zero displacement
                      "mean_U_error_um": (1e3 * np.mean(state.U_mm[ok] @ R_al.T - (X_true[k] - X_true[0])[ok],
                                                        axis=0)).tolist()})
-    imposed = np.array([r["imposed_mm"] for r in rows])
+    measured = [r for r in rows if "error" not in r]
+    imposed = np.array([r["imposed_mm"] for r in measured])
     goals = _paper_goal(imposed)
-    for r, pm, ps in zip(rows, goals["paper_mean_um"], goals["paper_std_um"]):
+    for r, pm, ps in zip(measured, goals["paper_mean_um"], goals["paper_std_um"]):
         r.update(paper_mean_um=_finite_or_none(pm), paper_std_um=_finite_or_none(ps),
                  goal_mean_um=_finite_or_none(pm / 10), goal_std_um=_finite_or_none(ps / 3),
                  meets_goal=bool(abs(r["mean_error_um"]) <= pm / 10 and r["std_um"] <= ps / 3)
@@ -177,8 +189,8 @@ def reproduce_rigid_motion(out_dir: str | Path, *, scale: float = 1.0, calib: st
                                    "pixel_footprint_mm": footprint_mm,
                                    "in_plane_um": float(1e3 * np.median(sigma_px) * footprint_mm)},
                "states": rows}
-    (out_dir / "metrics.json").write_text(json.dumps(metrics, indent=2))
-    _plot(out_dir / "fig6.png", rows, rig_text)
+    atomic_write_text(out_dir / "metrics.json", json.dumps(metrics, indent=2))
+    _plot(out_dir / "fig6.png", measured, rig_text)
     _report(out_dir / "report.md", metrics)
     return metrics
 
@@ -210,12 +222,13 @@ def _plot(path: Path, rows: list[dict], title: str) -> None:
         ax.legend(fontsize=7)
     fig.suptitle(f"Rigid-motion test (Fig 6): {title}", fontsize=9)
     fig.tight_layout()
-    fig.savefig(path, dpi=130)
+    save_figure(fig, path, dpi=130)
     plt.close(fig)
 
 
 def _report(path: Path, m: dict) -> None:
     e = m["reference_3d_error_um"]
+    seconds = [r["seconds"] for r in m["states"] if "error" not in r]
     lines = ["# Rigid-motion test (paper §4.3, Fig 6) on rendered images", "",
              f"Instrument: {m['calibration']}; lens {m['lens']}; scale {m['scale']}; subset {m['subset_px']} px, "
              f"step {m['step_px']} px, second-order shape function; {m['points']} points of interest "
@@ -227,11 +240,14 @@ def _report(path: Path, m: dict) -> None:
              f"{m['dic_noise_floor']['in_plane_um']:.3f} µm in-plane at {1e3 * m['dic_noise_floor']['pixel_footprint_mm']:.1f} "
              "µm per pixel; depth noise is larger by the stereo geometry (~1 / sin of the half stereo angle).", "",
              f"Stereo processing per state (two matches + triangulation): median "
-             f"{np.median([r['seconds'] for r in m['states']]):.1f} s for {m['points']} points.", "",
+             f"{np.median(seconds) if seconds else float('nan'):.1f} s for {m['points']} points.", "",
              "![fig 6](fig6.png)", "",
              "| state | imposed (mm) | points | mean error of D (µm) | std (µm) | goal mean / std (µm) | paper mean / std (µm) | met |",
              "|---|---|---|---|---|---|---|---|"]
     for r in m["states"]:
+        if "error" in r:
+            lines.append(f"| {r['state']} | {r['imposed_mm']:g} | skipped: {r['error']} | — | — | — | — | NO |")
+            continue
         met = "—" if r["meets_goal"] is None else ("yes" if r["meets_goal"] else "NO")
         goal = "—" if r["goal_mean_um"] is None else f"{r['goal_mean_um']:.2f} / {r['goal_std_um']:.2f}"
         paper = "—" if r["paper_mean_um"] is None else f"{r['paper_mean_um']:.1f} / {r['paper_std_um']:.1f}"
@@ -239,4 +255,4 @@ def _report(path: Path, m: dict) -> None:
                      f"{r['std_um']:.3f} | {goal} | {paper} | {met} |")
     lines += ["", "The paper prints only its 1 mm and 10 mm figures; in between they are interpolated linearly. The "
               "last state (0 mm) is the return to the start: its D measures the noise floor (goal: zero within noise).", ""]
-    path.write_text("\n".join(lines))
+    atomic_write_text(path, "\n".join(lines))

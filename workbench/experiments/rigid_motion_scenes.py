@@ -24,9 +24,10 @@ import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 
-import cv2
 import numpy as np
 from tqdm import tqdm
+
+from measurement.files import atomic_write_image, atomic_write_text
 
 from scenes.camera import SensorSpec
 from scenes.motion import STAGE_UP_WORLD, stage_direction, stage_poses, stage_states_mm
@@ -36,6 +37,7 @@ from scenes.specimens import BendingSpecimen
 from scenes.truth import (defocus_blur_px, focal_length_for_focus_mm, in_focus_points_world_mm,
                           points_of_interest_truth, project_points)
 from workbench.experiments.checkerboard_views import EXPOSURE_GREY, sensor_spec_for
+from workbench.manifest import complete_folder, prepare_folder
 from workbench.rigs import StereoRig, facing_plane_world, get_rig
 
 SIDES = ("left", "right")
@@ -229,8 +231,9 @@ def rigid_motion_truth(rig: StereoRig, *, lens: str = "thin", f_number: float = 
 def render_rigid_motion(rig: StereoRig | str, out_dir, scale: float = 1.0, lens: str = "thin", spp: int = 64,
                         seed: int = 0, noise_grey: float = 1.0, states=None, *,
                         f_number: float = DEFAULT_F_NUMBER, specimen: BendingSpecimen | None = None,
-                        centre_world_mm=None, progress: bool = True) -> RigidMotionTruth:
-    """Render the rigid-motion test in both cameras and write ``left_KK.png``, ``right_KK.png``, ``truth.json``.
+                        centre_world_mm=None, progress: bool = True, overwrite: bool = False) -> RigidMotionTruth:
+    """Render the rigid-motion test in both cameras and write ``left_KK.png``, ``right_KK.png``, ``truth.json``
+    and ``manifest.json`` (truth and manifest last: a folder with a manifest is complete).
 
     Parameters
     ----------
@@ -244,6 +247,8 @@ def render_rigid_motion(rig: StereoRig | str, out_dir, scale: float = 1.0, lens:
     states : stage positions in mm (default 0 -> 10 -> 0 mm in 1 mm steps, 21 states)
     specimen : default :meth:`BendingSpecimen.for_pixel_size` for the rig's resolution
     centre_world_mm : where the front-face centre sits in state 0 (default: where the optical axes meet)
+    overwrite : replace an earlier dataset in ``out_dir`` (deletes exactly the files its manifest lists); without
+        it such a folder is refused (:class:`workbench.manifest.DatasetFolderError`)
 
     Returns
     -------
@@ -260,9 +265,10 @@ def render_rigid_motion(rig: StereoRig | str, out_dir, scale: float = 1.0, lens:
     truth = rigid_motion_truth(rig, lens=lens, f_number=f_number, states_mm=states, specimen=specimen,
                                centre_world_mm=centre_world_mm, seed=seed)
     out_dir = Path(out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
-    texture = truth.specimen.texture()
     digits = max(2, len(str(len(truth.poses) - 1)))
+    planned = [f"{side}_{k:0{digits}d}.png" for k in range(len(truth.poses)) for side in SIDES]
+    prepare_folder(out_dir, "rigid-motion", planned + ["truth.json"], overwrite=overwrite)
+    texture = truth.specimen.texture()
     files = []
     for k, pose in enumerate(tqdm(truth.poses, desc=f"rendering rigid motion ({lens})", disable=not progress)):
         surfaces = truth.specimen.surfaces(*pose, texture=texture)
@@ -273,9 +279,7 @@ def render_rigid_motion(rig: StereoRig | str, out_dir, scale: float = 1.0, lens:
             result = render_view(truth.specs[side], *truth.camera_poses[side], surfaces, spp=spp, seed=image_seed,
                                  exposure_grey=EXPOSURE_GREY[8])
             names[side] = f"{side}_{k:0{digits}d}.png"
-            image = to_image_dtype(noise.apply(result.image_grey, seed=image_seed), 8)
-            if not cv2.imwrite(str(out_dir / names[side]), image):
-                raise OSError(f"could not write {out_dir / names[side]}")
+            atomic_write_image(out_dir / names[side], to_image_dtype(noise.apply(result.image_grey, seed=image_seed), 8))
         files.append(names)
     truth.files = files
     truth.info.update(render={"spp": int(spp), "seed": int(seed), "bit_depth": 8, "read_noise_grey": float(noise_grey),
@@ -285,7 +289,10 @@ def render_rigid_motion(rig: StereoRig | str, out_dir, scale: float = 1.0, lens:
                            "T_right_from_left_mm": np.asarray(rig.T_right_from_left_mm).tolist(),
                            "pixel_pitch_mm": rig.pixel_pitch_mm,
                            "intrinsics": {side: rig.camera(side).to_dict() for side in SIDES}})
-    (out_dir / "truth.json").write_text(json.dumps(_truth_to_json(truth), indent=1))
+    atomic_write_text(out_dir / "truth.json", json.dumps(_truth_to_json(truth), indent=1))
+    complete_folder(out_dir, "rigid-motion", [n for names in files for n in names.values()] + ["truth.json"],
+                    {"rig": rig.name, "scale": rig_scale, "lens": lens, **truth.info["render"],
+                     "states_mm": [float(v) for v in truth.states_mm]})
     return truth
 
 
@@ -319,19 +326,21 @@ def _truth_to_json(truth: RigidMotionTruth) -> dict:
 
 
 def load_truth(out_dir) -> RigidMotionTruth:
-    """Read ``truth.json`` written by :func:`render_rigid_motion` back into a :class:`RigidMotionTruth`."""
-    path = Path(out_dir) / "truth.json"
-    if not path.is_file():
-        raise FileNotFoundError(f"no truth.json in {out_dir}")
-    d = json.loads(path.read_text())
-    spec_fields = dict(d["specimen"])
-    spec_fields.pop("type", None)
-    specimen = BendingSpecimen(**spec_fields)
-    specs = {side: SensorSpec(**d["cameras"][side]["sensor_spec"]) for side in SIDES}
-    camera_poses = {side: (np.array(d["cameras"][side]["R_cam_from_world"]),
-                           np.array(d["cameras"][side]["t_cam_from_world_mm"])) for side in SIDES}
-    states = d["states"]
-    poses = [(np.array(s["R_world_from_specimen"]), np.array(s["t_world_from_specimen_mm"])) for s in states]
-    info = {k: v for k, v in d.items() if k not in ("about", "specimen", "cameras", "stage_direction_world", "states")}
-    return RigidMotionTruth(specimen, specs, camera_poses, np.array([s["stage_mm"] for s in states]),
-                            np.array(d["stage_direction_world"]), poses, [s["files"] for s in states], info)
+    """Read ``truth.json`` written by :func:`render_rigid_motion` back into a :class:`RigidMotionTruth`.
+
+    Raises FileNotFoundError when there is no ``truth.json`` and :class:`measurement.schema.FileFormatError`
+    (a ValueError naming the file and the key) for anything malformed (:mod:`workbench.truth_schema`).
+    """
+    from workbench import truth_schema as ts
+
+    doc = ts.read_truth(out_dir)
+    specimen = ts.specimen(doc["specimen"])
+    specs, camera_poses = ts.cameras(doc)
+    direction = doc["stage_direction_world"]
+    stage_direction_world = direction.vector(3, lo_norm=1 - 1e-6, hi_norm=1 + 1e-6)
+    states = ts.states(doc)
+    stage_mm = np.array([s["stage_mm"].number(-ts.MAX_MM, ts.MAX_MM, unit="mm") for s in states])
+    poses = [(s["R_world_from_specimen"].rotation(), ts.position(s["t_world_from_specimen_mm"])) for s in states]
+    files = [ts.files(s) for s in states]
+    info = ts.info(doc, ("about", "specimen", "cameras", "stage_direction_world", "states"), LENSES)
+    return RigidMotionTruth(specimen, specs, camera_poses, stage_mm, stage_direction_world, poses, files, info)
