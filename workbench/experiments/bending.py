@@ -30,7 +30,7 @@ from measurement.strain import surface_strain, virtual_strain_gauge_px
 from workbench.experiments.bending_scenes import BENDING_LOADS_N, load_bending_truth, render_bending
 from workbench.experiments.rigid_motion import _face_roi, _finite_or_none, _rig_for_name
 from workbench.manifest import complete_manifest
-from workbench.rigs import paper_values, scheimpflug_design_report
+from workbench.rigs import scheimpflug_design_report
 
 #: Default strain window (points per side of the least-squares fit): VSG = 14 * 5 + 65 = 135 px (~4.7 mm).
 DEFAULT_STRAIN_WINDOW = 15

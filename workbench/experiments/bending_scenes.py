@@ -20,20 +20,19 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-from tqdm import tqdm
 
-from measurement.files import atomic_write_image, atomic_write_text
+from measurement.files import atomic_write_text
 
 from scenes.camera import SensorSpec
 from scenes.fields import ThreePointBending, three_point_bending_field
-from scenes.noise import SensorNoise, to_image_dtype
-from scenes.render import render_view
+from scenes.noise import SensorNoise
 from scenes.specimens import BendingSpecimen
 from scenes.truth import focal_length_for_focus_mm, intersect_deformed_front_face, pixel_rays, project_points
-from workbench.experiments.checkerboard_views import EXPOSURE_GREY, sensor_spec_for
+from workbench.experiments.checkerboard_views import sensor_spec_for
 from workbench.manifest import complete_folder, prepare_folder
 from workbench.experiments.rigid_motion_scenes import (BLUR_WARNING_PX, check_specimen_in_view, face_blur_px,
-                                                       focus_plane_angle_deg, specimen_reference_pose)
+                                                       focus_plane_angle_deg, render_info, render_stereo_states,
+                                                       specimen_reference_pose)
 from workbench.rigs import DEFAULT_F_NUMBER, StereoRig, get_rig
 
 SIDES = ("left", "right")
@@ -207,25 +206,11 @@ def render_bending(rig: StereoRig | str, out_dir, scale: float = 1.0, lens: str 
     planned = [f"{side}_{k:0{digits}d}.png" for k in range(len(truth.loads_N)) for side in SIDES]
     prepare_folder(out_dir, "bending", planned + ["truth.json"], overwrite=overwrite)
     texture = truth.specimen.texture()
-    files = []
-    for k in tqdm(range(len(truth.loads_N)), desc=f"rendering bending ({lens})", disable=not progress):
-        surfaces = truth.specimen.surfaces(*truth.pose, texture=texture, displacement_mm=truth.field(k))
-        names = {}
-        for c, side in enumerate(SIDES):
-            image_seed = seed * 100003 + 2 * k + c        # one seed per image: Monte-Carlo noise is pixel-locked
-            result = render_view(truth.specs[side], *truth.camera_poses[side], surfaces, spp=spp, seed=image_seed,
-                                 exposure_grey=EXPOSURE_GREY[8])
-            names[side] = f"{side}_{k:0{digits}d}.png"
-            atomic_write_image(out_dir / names[side], to_image_dtype(noise.apply(result.image_grey, seed=image_seed), 8))
-        files.append(names)
+    files = render_stereo_states(
+        truth, lambda k: truth.specimen.surfaces(*truth.pose, texture=texture, displacement_mm=truth.field(k)),
+        len(truth.loads_N), out_dir, noise, spp=spp, seed=seed, desc=f"rendering bending ({lens})", progress=progress)
     truth.files = files
-    truth.info.update(render={"spp": int(spp), "seed": int(seed), "bit_depth": 8, "read_noise_grey": float(noise_grey),
-                              "exposure_grey": EXPOSURE_GREY[8]},
-                      rig={"name": rig.name, "scale": rig_scale,
-                           "R_right_from_left": np.asarray(rig.R_right_from_left).tolist(),
-                           "T_right_from_left_mm": np.asarray(rig.T_right_from_left_mm).tolist(),
-                           "pixel_pitch_mm": rig.pixel_pitch_mm,
-                           "intrinsics": {side: rig.camera(side).to_dict() for side in SIDES}})
+    truth.info.update(render_info(rig, rig_scale, spp, seed, noise_grey))
     atomic_write_text(out_dir / "truth.json", json.dumps(_truth_to_json(truth), indent=1))   # after every image
     complete_folder(out_dir, "bending", [n for names in files for n in names.values()] + ["truth.json"],
                     {"rig": rig.name, "scale": rig_scale, "lens": lens, **truth.info["render"],

@@ -269,31 +269,50 @@ def render_rigid_motion(rig: StereoRig | str, out_dir, scale: float = 1.0, lens:
     planned = [f"{side}_{k:0{digits}d}.png" for k in range(len(truth.poses)) for side in SIDES]
     prepare_folder(out_dir, "rigid-motion", planned + ["truth.json"], overwrite=overwrite)
     texture = truth.specimen.texture()
+    files = render_stereo_states(truth, lambda k: truth.specimen.surfaces(*truth.poses[k], texture=texture),
+                                 len(truth.poses), out_dir, noise, spp=spp, seed=seed,
+                                 desc=f"rendering rigid motion ({lens})", progress=progress)
+    truth.files = files
+    truth.info.update(render_info(rig, rig_scale, spp, seed, noise_grey))
+    atomic_write_text(out_dir / "truth.json", json.dumps(_truth_to_json(truth), indent=1))
+    complete_folder(out_dir, "rigid-motion", [n for names in files for n in names.values()] + ["truth.json"],
+                    {"rig": rig.name, "scale": rig_scale, "lens": lens, **truth.info["render"],
+                     "states_mm": [float(v) for v in truth.states_mm]})
+    return truth
+
+
+def render_stereo_states(truth, surfaces_of_state, n_states: int, out_dir: Path, noise: SensorNoise, *, spp: int,
+                         seed: int, desc: str, progress: bool = True) -> list[dict[str, str]]:
+    """Render every state in both cameras as 8-bit ``left_KK.png`` / ``right_KK.png`` (atomic writes).
+
+    ``truth`` provides ``specs`` and ``camera_poses``; ``surfaces_of_state(k)`` the scene of state k. One seed per
+    image (``seed * 100003 + 2 k + camera``): Monte-Carlo noise is pixel-locked, so states must not share it.
+    Returns the file names per state.
+    """
+    digits = max(2, len(str(n_states - 1)))
     files = []
-    for k, pose in enumerate(tqdm(truth.poses, desc=f"rendering rigid motion ({lens})", disable=not progress)):
-        surfaces = truth.specimen.surfaces(*pose, texture=texture)
+    for k in tqdm(range(n_states), desc=desc, disable=not progress):
+        surfaces = surfaces_of_state(k)
         names = {}
         for c, side in enumerate(SIDES):
-            # One seed per image: Monte-Carlo noise is pixel-locked, so states must not share it.
             image_seed = seed * 100003 + 2 * k + c
             result = render_view(truth.specs[side], *truth.camera_poses[side], surfaces, spp=spp, seed=image_seed,
                                  exposure_grey=EXPOSURE_GREY[8])
             names[side] = f"{side}_{k:0{digits}d}.png"
             atomic_write_image(out_dir / names[side], to_image_dtype(noise.apply(result.image_grey, seed=image_seed), 8))
         files.append(names)
-    truth.files = files
-    truth.info.update(render={"spp": int(spp), "seed": int(seed), "bit_depth": 8, "read_noise_grey": float(noise_grey),
-                              "exposure_grey": EXPOSURE_GREY[8]},
-                      rig={"name": rig.name, "scale": rig_scale,
-                           "R_right_from_left": np.asarray(rig.R_right_from_left).tolist(),
-                           "T_right_from_left_mm": np.asarray(rig.T_right_from_left_mm).tolist(),
-                           "pixel_pitch_mm": rig.pixel_pitch_mm,
-                           "intrinsics": {side: rig.camera(side).to_dict() for side in SIDES}})
-    atomic_write_text(out_dir / "truth.json", json.dumps(_truth_to_json(truth), indent=1))
-    complete_folder(out_dir, "rigid-motion", [n for names in files for n in names.values()] + ["truth.json"],
-                    {"rig": rig.name, "scale": rig_scale, "lens": lens, **truth.info["render"],
-                     "states_mm": [float(v) for v in truth.states_mm]})
-    return truth
+    return files
+
+
+def render_info(rig: StereoRig, rig_scale, spp: int, seed: int, noise_grey: float) -> dict:
+    """The ``render`` and ``rig`` entries of a rendered sequence's truth.json."""
+    return {"render": {"spp": int(spp), "seed": int(seed), "bit_depth": 8, "read_noise_grey": float(noise_grey),
+                       "exposure_grey": EXPOSURE_GREY[8]},
+            "rig": {"name": rig.name, "scale": rig_scale,
+                    "R_right_from_left": np.asarray(rig.R_right_from_left).tolist(),
+                    "T_right_from_left_mm": np.asarray(rig.T_right_from_left_mm).tolist(),
+                    "pixel_pitch_mm": rig.pixel_pitch_mm,
+                    "intrinsics": {side: rig.camera(side).to_dict() for side in SIDES}}}
 
 
 # ------------------------------------------------------------------------------------------------------------
