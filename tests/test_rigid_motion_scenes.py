@@ -265,7 +265,7 @@ def test_dataset_files_and_truth_json(dataset):
         for side in ("left", "right"):
             img = cv2.imread(str(out / names[side]), cv2.IMREAD_UNCHANGED)
             assert img.dtype == np.uint8 and img.shape == (truth.specs[side].height, truth.specs[side].width)
-    with pytest.raises(FileNotFoundError):
+    with pytest.raises(FileNotFoundError, match="no truth.json in .*nowhere"):
         load_truth(out / "nowhere")
 
 
