@@ -31,9 +31,9 @@ from scenes.truth import focal_length_for_focus_mm, intersect_deformed_front_fac
 from workbench.experiments.checkerboard_views import sensor_spec_for
 from workbench.manifest import complete_folder, prepare_folder
 from workbench.experiments.rigid_motion_scenes import (BLUR_WARNING_PX, check_specimen_in_view, face_blur_px,
-                                                       focus_plane_angle_deg, render_info, render_stereo_states,
+                                                       focus_plane_angle_deg, render_info, render_stereo_states, resolve_rig,
                                                        specimen_reference_pose)
-from workbench.rigs import DEFAULT_F_NUMBER, StereoRig, get_rig
+from workbench.rigs import DEFAULT_F_NUMBER, StereoRig
 
 SIDES = ("left", "right")
 LENSES = ("thin", "pinhole")
@@ -192,11 +192,7 @@ def render_bending(rig: StereoRig | str, out_dir, scale: float = 1.0, lens: str 
     overwrite : replace an earlier dataset in ``out_dir`` (deletes exactly the files its manifest lists); without
         it such a folder is refused (:class:`workbench.manifest.DatasetFolderError`)
     """
-    rig_scale = None
-    if isinstance(rig, str):
-        rig, rig_scale = get_rig(rig, scale), float(scale)
-    elif scale != 1.0:
-        raise ValueError("scale applies to a rig given by name; a StereoRig is already scaled")
+    rig, rig_scale = resolve_rig(rig, scale)
     if spp < 1:
         raise ValueError(f"spp must be >= 1, got {spp}")
     noise = SensorNoise(read_noise_grey=noise_grey, bit_depth=8)

@@ -254,11 +254,7 @@ def render_rigid_motion(rig: StereoRig | str, out_dir, scale: float = 1.0, lens:
     -------
     RigidMotionTruth (also written as ``truth.json``; read it back with :func:`load_truth`)
     """
-    rig_scale = None           # unknown for a StereoRig given as such; its intrinsics are recorded anyway
-    if isinstance(rig, str):
-        rig, rig_scale = get_rig(rig, scale), float(scale)
-    elif scale != 1.0:
-        raise ValueError("scale applies to a rig given by name; a StereoRig is already scaled (paper_rig(scale))")
+    rig, rig_scale = resolve_rig(rig, scale)
     if spp < 1:
         raise ValueError(f"spp must be >= 1, got {spp}")
     noise = SensorNoise(read_noise_grey=noise_grey, bit_depth=8)
@@ -279,6 +275,16 @@ def render_rigid_motion(rig: StereoRig | str, out_dir, scale: float = 1.0, lens:
                     {"rig": rig.name, "scale": rig_scale, "lens": lens, **truth.info["render"],
                      "states_mm": [float(v) for v in truth.states_mm]})
     return truth
+
+
+def resolve_rig(rig: StereoRig | str, scale: float) -> tuple[StereoRig, float | None]:
+    """A rig given by name is built at ``scale``; a StereoRig is already scaled (its scale is then unknown,
+    None, and its intrinsics are recorded instead) and ``scale`` must stay 1."""
+    if isinstance(rig, str):
+        return get_rig(rig, scale), float(scale)
+    if scale != 1.0:
+        raise ValueError("scale applies to a rig given by name; a StereoRig is already scaled (get_rig(name, scale))")
+    return rig, None
 
 
 def render_stereo_states(truth, surfaces_of_state, n_states: int, out_dir: Path, noise: SensorNoise, *, spp: int,
