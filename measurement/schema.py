@@ -208,10 +208,12 @@ class Node:
 
     # --- dataclasses ------------------------------------------------------------------------------------
     def dataclass(self, cls, *, ranges: dict[str, tuple] | None = None, ignore: Iterable[str] = (),
-                  number_bound: float = 1e9, int_range: tuple[int, int] = (0, 2 ** 63 - 1)):
+                  number_bound: float = 1e9, int_range: tuple[int, int] = (0, 2 ** 63 - 1),
+                  optional: Iterable[str] = ()):
         """Build ``cls`` (a dataclass of float/int/str fields) from a mapping holding every field.
 
-        Every field is required (a missing one is never filled with its default), unknown keys are refused
+        Every field is required (a missing one is never filled with its default) except those named in
+        ``optional`` (fields added after files were written: absent means the default), unknown keys are refused
         (``ignore`` lists keys to skip, e.g. a ``type`` tag), floats are finite with ``|x| < number_bound`` or in
         ``ranges[name] = (lo, hi)`` (open bounds; ``(lo, hi, lo_open, hi_open)`` to choose), ints in
         ``ranges[name]`` or ``int_range`` (closed); a ValueError from the class' own checks is re-raised naming
@@ -221,8 +223,11 @@ class Node:
         ignore = set(ignore)
         flds = [f for f in dataclasses.fields(cls) if f.init]
         self.only_keys({f.name for f in flds} | ignore)
+        optional = set(optional)
         kwargs = {}
         for f in flds:
+            if f.name in optional and self.get(f.name) is None:
+                continue
             child = self[f.name]
             kind = f.type if isinstance(f.type, str) else getattr(f.type, "__name__", str(f.type))
             if kind == "float":

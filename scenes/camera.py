@@ -11,7 +11,8 @@ distance, i.e. the ideal image plane is z = 1 in front of the lens):
 * a pixel (u, v) sits at ``(0,0,1) + (u - cx)/fx * e1 + (v - cy)/fy * e2`` with e1, e2 the tilted sensor
   axes (the physical sensor is the point mirror of this plane behind the lens);
 * the lens distortion (Brown k1, k2, p1, p2 on the ideal plane, distortion applied *before* the tilt as in
-  the paper) is undone per ray by fixed-point iteration, giving the chief ray direction (x_n, y_n, 1);
+  the paper; optionally OpenCV's k3 and thin-prism s1..s4, which the instrument does not model) is undone
+  per ray by fixed-point iteration, giving the chief ray direction (x_n, y_n, 1);
 * pinhole: the ray leaves the lens centre along the chief ray;
 * thin lens: the sensor point at distance ``z_i`` behind the lens is conjugate (1/z_o + 1/z_i = 1/F) to the
   point at depth ``z_o`` on the chief ray; rays from a uniformly sampled circular aperture of diameter
@@ -30,9 +31,23 @@ from scenes.backend import dr, mi
 
 PLUGIN_NAME = "scheimpflug"
 
-#: Fixed-point iterations of the per-ray undistortion; the contraction factor is ~2|k1| r^2 (~1e-2 for
-#: Table 1), so 8 iterations are far below float32 resolution.
+#: Fixed-point iterations of the per-ray undistortion. The error shrinks per step by about the slope of the
+#: distortion, ~|2 k1 r^2 + 4 k2 r^4 + 6 k3 r^6| + 2 |s| r (~1e-2 at Table 1's corners, r ~ 0.15), so for a
+#: Brown-only lens like Table 1's, 8 iterations are far below float32 resolution.
 UNDISTORT_ITERATIONS = 8
+#: Iterations for a lens with any of the k3 / thin-prism terms. Those matter most on wide fields, where the
+#: contraction is slowest. Measured (tests/test_lens_terms.py: plugin rays vs the float64 truth, 1600 x 1200
+#: px, fx = 2000 px, tilt (2, -3) deg, |s_i| <= 1e-3, image corners at r = 0.48-0.58), worst error in
+#: normalised units, where float32 rounding alone gives ~1e-7 (2e-4 px): k3 = 1 alone, k3 = 1 with Table 1's
+#: k1, k2, with k1 = -0.3, or with k1 = +0.3 (9 % pincushion): at that floor with 8 iterations already; but
+#: k1 = -0.3, k2 = 0.2, k3 = -1 (8 % barrel, k1 and k3 adding up): 2.4e-5 after 8, 6.2e-7 after 12, 1.0e-7
+#: (the floor) after 16. Extra iterations are a few flops per ray. Brown-only lenses keep 8 so that their
+#: renders stay bit-identical (with 12, one pixel of the paper rig's right camera in 315 596 moves by one
+#: float32 ulp).
+UNDISTORT_ITERATIONS_EXTRA_TERMS = 16
+
+#: Lens terms beyond Brown k1, k2, p1, p2 (OpenCV's names); 0 = absent. The instrument does not model them.
+EXTRA_LENS_TERMS = ("k3", "s1", "s2", "s3", "s4")
 
 
 @dataclass(frozen=True)
@@ -42,6 +57,32 @@ class SensorSpec:
     Intrinsics use the names of Table 1 of the paper (pixels, degrees); ``lens`` is ``"pinhole"`` or
     ``"thin"``. A thin lens needs ``focal_length_mm`` (the lens' F), ``f_number`` and ``pixel_pitch_mm``
     (so the image distance is ``fx * pixel_pitch_mm``).
+
+    Distortion acts on the ideal image plane (normalised coordinates ``x, y``, ``r^2 = x^2 + y^2``) before
+    the sensor tilt, with exactly OpenCV's definitions (``cv::projectPoints``, distCoeffs
+    ``(k1, k2, p1, p2, k3, 0, 0, 0, s1, s2, s3, s4)``; rational k4..k6 are not implemented)::
+
+        x_d = x (1 + k1 r^2 + k2 r^4 + k3 r^6) + 2 p1 x y + p2 (r^2 + 2 x^2) + s1 r^2 + s2 r^4
+        y_d = y (1 + k1 r^2 + k2 r^4 + k3 r^6) + p1 (r^2 + 2 y^2) + 2 p2 x y + s3 r^2 + s4 r^4
+
+    k1, k2, p1, p2 are the paper's Brown terms (eq 7), which :mod:`measurement.camera` also models. The
+    remaining terms (all 0 by default, i.e. absent; a spec without them renders bit-identically as before
+    they existed) are *true-lens* terms the instrument does not model, a lens-model-mismatch error source
+    (DESIGN.md §7):
+
+    * ``k3`` (unitless, r^6 radial term): it moves an image point by ``fx |k3| r^7`` px at radius r. On
+      industrial C-mount lenses of 25-35 mm it is worth a few px at the image corners: the VIC-3D
+      calibration of the Stereo-DIC Challenge 1.0 Sample 3 has kappa3 terms worth 1.6-3.3 px there. As a
+      coefficient of r^6 its value depends on the field of view: |k3| up to ~1 with corners at r ~ 0.5
+      (wide angle), while 2.5 px needs k3 ~ 7 at r = 0.25 (fx = 6000 px) and ~ 45 at the far corner of
+      Table 1's left camera (r = 0.175, fx = 10 912 px, where k3 = 1 is only 0.06 px).
+    * ``s1, s2`` (x) and ``s3, s4`` (y) (unitless): thin-prism distortion from decentred or tilted lens
+      elements and a lens not parallel to the sensor (Weng, Cohen, Herniou 1992, "Camera calibration with
+      distortion models and accuracy evaluation", IEEE PAMI 14(10):965-980); typical magnitudes
+      |s_i| ~ 1e-4-1e-3. ``s1`` shifts a corner by ``fx s1 r^2`` px: 0.02-0.24 px on Table 1's rig,
+      0.05-0.5 px at r = 0.5 with fx = 2000 px.
+
+    All numeric fields must be finite (ValueError naming the field).
     """
 
     fx: float
@@ -60,6 +101,12 @@ class SensorSpec:
     focal_length_mm: float = 0.0
     f_number: float = 0.0
     pixel_pitch_mm: float = 0.00345
+    # Appended after the existing fields so that positional construction keeps its meaning.
+    k3: float = 0.0
+    s1: float = 0.0
+    s2: float = 0.0
+    s3: float = 0.0
+    s4: float = 0.0
 
     def __post_init__(self):
         for f in fields(self):
@@ -115,6 +162,10 @@ class ScheimpflugSensor(mi.Sensor):
         self.fx, self.fy = get("fx"), get("fy")
         self.cx, self.cy = get("cx"), get("cy")
         self.k1, self.k2, self.p1, self.p2 = get("k1"), get("k2"), get("p1"), get("p2")
+        self.k3 = get("k3")
+        self.s1, self.s2, self.s3, self.s4 = get("s1"), get("s2"), get("s3"), get("s4")
+        extra = any(getattr(self, name) != 0.0 for name in EXTRA_LENS_TERMS)
+        self.undistort_iterations = UNDISTORT_ITERATIONS_EXTRA_TERMS if extra else UNDISTORT_ITERATIONS
         axes = sensor_axes(get("alpha_deg"), get("beta_deg"))
         self.e1 = [float(x) for x in axes[:, 0]]
         self.e2 = [float(x) for x in axes[:, 1]]
@@ -142,14 +193,30 @@ class ScheimpflugSensor(mi.Sensor):
         pz = 1.0 + s * e1[2] + t * e2[2]
         xd, yd = px / pz, py / pz
         xn, yn = mi.Float(xd), mi.Float(yd)
-        for _ in range(UNDISTORT_ITERATIONS):
-            r2 = xn * xn + yn * yn
-            radial = 1.0 + r2 * (self.k1 + self.k2 * r2)
-            dx = 2.0 * self.p1 * xn * yn + self.p2 * (r2 + 2.0 * xn * xn)
-            dy = self.p1 * (r2 + 2.0 * yn * yn) + 2.0 * self.p2 * xn * yn
+        for _ in range(self.undistort_iterations):
+            radial, dx, dy = self._distortion_terms(xn, yn)
             xn = (xd - dx) / radial
             yn = (yd - dy) / radial
         return xn, yn, pz
+
+    def _distortion_terms(self, xn, yn):
+        """OpenCV's distortion split as ``x_d = x_n * radial + dx``, ``y_d = y_n * radial + dy`` (Dr.Jit arrays).
+
+        The k3 and thin-prism terms enter the traced kernel only when non-zero, so that a lens without them
+        traces exactly the kernel it traced before they existed (bit-identical renders).
+        """
+        r2 = xn * xn + yn * yn
+        if self.k3 != 0.0:
+            radial = 1.0 + r2 * (self.k1 + r2 * (self.k2 + self.k3 * r2))
+        else:
+            radial = 1.0 + r2 * (self.k1 + self.k2 * r2)
+        dx = 2.0 * self.p1 * xn * yn + self.p2 * (r2 + 2.0 * xn * xn)
+        dy = self.p1 * (r2 + 2.0 * yn * yn) + 2.0 * self.p2 * xn * yn
+        if self.s1 != 0.0 or self.s2 != 0.0:
+            dx = dx + r2 * (self.s1 + self.s2 * r2)
+        if self.s3 != 0.0 or self.s4 != 0.0:
+            dy = dy + r2 * (self.s3 + self.s4 * r2)
+        return radial, dx, dy
 
     def sample_ray(self, time, sample1, sample2, sample3, active=True):
         xn, yn, pz = self._chief_ray(sample2)
@@ -195,6 +262,8 @@ def sensor_dict(spec: SensorSpec, R_cam_from_world, t_cam_from_world_mm, spp: in
                 crop: tuple[int, int, int, int] | None = None, sampler: str = "stratified") -> dict:
     """Mitsuba scene-dict entry for ``spec`` at the given pose.
 
+    Every numeric field of ``spec`` except width/height becomes a float property of the plugin (the lens
+    terms k3, s1..s4 included, 0.0 when absent); ``lens`` stays a string.
     ``crop = (x0, y0, width, height)`` in pixels renders only that window of the full sensor.
     """
     film = {"type": "hdrfilm", "width": int(spec.width), "height": int(spec.height),

@@ -13,6 +13,9 @@
                      [--overwrite] --out DIR
     workbench dic REF DEF [--roi X0,Y0,X1,Y1] [--subset 33] [--step 8] [--order 1|2]
                   [--interp biquintic|bicubic] [--seed-point X,Y] --out points.csv
+    workbench sweep STUDY.toml [--scheduler tcp://HOST:8786] [--workers N] [--store DIR] --out DIR
+    workbench budget STUDY.toml --metric NAME [--at DIM=VALUE] [--scheduler ...] [--workers N] --out DIR
+    workbench parameters            (every scenario.* and instrument.* parameter a study may set)
 
 Every option is checked when it is parsed (numbers finite and in range, sizes odd, ...) and every input file
 before the first long computation; errors are one line naming the option or file, exit code 2. Files are
@@ -405,6 +408,25 @@ def _parser() -> argparse.ArgumentParser:
                      help="Gaussian pre-filter sigma (px), default off")
     dic.add_argument("--threads", type=_positive_int, default=None, help="worker threads (default: all cores)")
     dic.add_argument("--out", type=Path, required=True, help="CSV of the points (x,y,u,v,zncc,iterations,status,...)")
+
+    for name, text in (("sweep", "run a study file (axes x repeats) on Dask: results.nc, results.csv, report.html"),
+                       ("budget", "error budget: each error source of a study file alone, then all together")):
+        sw = sub.add_parser(name, help=text)
+        sw.add_argument("study", type=Path, help="study file (.toml or .json)")
+        sw.add_argument("--scheduler", default=None,
+                        help="address of a running Dask scheduler (tcp://host:8786); default: a LocalCluster")
+        sw.add_argument("--workers", type=_positive_int, default=2, help="LocalCluster process workers, default 2")
+        sw.add_argument("--store", type=Path, default=None,
+                        help="dataset store (renders by scenario hash); default $WORKBENCH_STORE or ~/.cache/...")
+        sw.add_argument("--quiet", action="store_true", help="no progress bar")
+        sw.add_argument("--out", type=Path, required=True,
+                        help="output folder (cases/<hash>.json, results.nc, results.csv, report.html); rerun the "
+                             "same command to resume")
+        if name == "budget":
+            sw.add_argument("--metric", required=True, help="the metric whose budget is drawn")
+            sw.add_argument("--at", default=None,
+                            help="for a metric over a dimension (e.g. stage_mm), the value to take: DIM=VALUE")
+    sub.add_parser("parameters", help="list every scenario.* and instrument.* parameter with its default and doc")
     return p
 
 
@@ -740,6 +762,21 @@ def _reproduce_depth_of_field(args) -> int:
     return 0
 
 
+def _sweep(args) -> int:
+    from workbench.sweep_cli import sweep_command
+    return sweep_command(args)
+
+
+def _budget(args) -> int:
+    from workbench.sweep_cli import budget_command
+    return budget_command(args)
+
+
+def _parameters(args) -> int:
+    from workbench.sweep_cli import parameters_command
+    return parameters_command(args)
+
+
 @contextlib.contextmanager
 def _one_line_warnings(where: str):
     """Warnings print as ``workbench CMD: warning: ...`` (no source line), as errors do."""
@@ -786,7 +823,10 @@ def main(argv: list[str] | None = None) -> int:
                 ("stereo", None): _stereo,
                 ("reproduce", "dic-accuracy"): _reproduce_dic_accuracy,
                 ("reproduce", "rigid-motion"): _reproduce_rigid_motion,
-                ("reproduce", "bending"): _reproduce_bending}
+                ("reproduce", "bending"): _reproduce_bending,
+                ("sweep", None): _sweep,
+                ("budget", None): _budget,
+                ("parameters", None): _parameters}
     where = " ".join(filter(None, ("workbench", args.command, getattr(args, "what", None))))
     try:
         with _one_line_warnings(where):

@@ -14,7 +14,7 @@ from pathlib import Path, PurePath
 import numpy as np
 
 from measurement.schema import FileFormatError, Node, read_json_file
-from scenes.camera import SensorSpec
+from scenes.camera import EXTRA_LENS_TERMS, SensorSpec
 from scenes.specimens import BendingSpecimen
 
 SIDES = ("left", "right")
@@ -67,7 +67,8 @@ def cameras(doc: Node) -> tuple[dict[str, SensorSpec], dict[str, tuple[np.ndarra
     specs, poses = {}, {}
     for side in SIDES:
         cam = cams[side]
-        specs[side] = cam["sensor_spec"].dataclass(SensorSpec, ranges=SENSOR_RANGES)
+        # lens terms added later (k3, thin prism) may be absent from older files: absent = 0
+        specs[side] = cam["sensor_spec"].dataclass(SensorSpec, ranges=SENSOR_RANGES, optional=EXTRA_LENS_TERMS)
         poses[side] = (cam["R_cam_from_world"].rotation(), position(cam["t_cam_from_world_mm"]))
     return specs, poses
 

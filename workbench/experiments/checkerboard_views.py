@@ -57,29 +57,38 @@ def sensor_spec_for(rig: StereoRig, side: str, **lens) -> SensorSpec:
 
 
 def render_board_views(rig: StereoRig, board: Checkerboard, poses, *, spp: int = 64, seed: int = 0,
-                       bit_depth: int = 8, progress: bool = True):
+                       bit_depth: int = 8, progress: bool = True, lens_terms: dict | None = None):
     """Render every pose in both cameras; yields :class:`BoardView` (noise-free images).
 
     ``poses``: list of ``(R_world_from_board, t_world_from_board_mm)``. A pose whose board leaves an image
-    raises :class:`workbench.poses.BoardOutOfViewError` naming the view and camera.
+    raises :class:`workbench.poses.BoardOutOfViewError` naming the view and camera. The truth of a view is
+    where the corners really are (:meth:`scenes.targets.Checkerboard.true_corners_board_mm`: an imperfect
+    board's corners are not the nominal ones the instrument is told). ``lens_terms``: distortion terms of the
+    true lenses that the rig's model lacks (``k3``, ``s1``-``s4``); the truth pixels are then projected by the
+    truth side's camera (:func:`scenes.truth.project_points`).
     """
-    corners_board = board.corners_board_mm()
+    from scenes.truth import project_points
+
+    corners_board = board.true_corners_board_mm()
     for view, (R_wb, t_wb) in enumerate(tqdm(poses, desc="rendering board views", disable=not progress)):
         check_in_view(board_outline_mm(board) @ np.asarray(R_wb).T + t_wb, rig, what=f"board of view {view}")
         surface = board.surface(R_wb, t_wb)
         for k, side in enumerate(("left", "right")):
             R_cw, t_cw = rig.pose(side)
             R_cb, t_cb = R_cw @ R_wb, R_cw @ t_wb + t_cw
-            result = render_view(sensor_spec_for(rig, side), R_cw, t_cw, [surface], spp=spp,
+            spec = sensor_spec_for(rig, side, **(lens_terms or {}))
+            result = render_view(spec, R_cw, t_cw, [surface], spp=spp,
                                  seed=seed * 100003 + 2 * view + k, exposure_grey=EXPOSURE_GREY[bit_depth])
             points = corners_board @ R_cb.T + t_cb
-            yield BoardView(view, side, result.image_grey, R_cb, t_cb, points, rig.camera(side).project(points))
+            pixels = (project_points(spec, np.eye(3), np.zeros(3), points) if lens_terms
+                      else rig.camera(side).project(points))
+            yield BoardView(view, side, result.image_grey, R_cb, t_cb, points, pixels)
 
 
 def write_checkerboard_dataset(rig: StereoRig, out_dir: Path, n_views: int, seed: int, *, spp: int = 64,
                                board: Checkerboard | None = None, noise: SensorNoise | None = None,
                                image_format: str = "png", progress: bool = True, poses=None,
-                               overwrite: bool = False) -> dict:
+                               overwrite: bool = False, lens_terms: dict | None = None) -> dict:
     """Render ``n_views`` random stereo poses (or the given ``poses``) and write images, ``truth.json`` and
     ``manifest.json`` (:mod:`workbench.manifest`; truth and manifest last: a folder with a manifest is complete).
 
@@ -98,7 +107,7 @@ def write_checkerboard_dataset(rig: StereoRig, out_dir: Path, n_views: int, seed
     prepare_folder(out_dir, "checkerboard", names + ["truth.json"], overwrite=overwrite)
     images = []
     for bv in render_board_views(rig, board, poses, spp=spp, seed=seed, bit_depth=noise.bit_depth or 8,
-                                 progress=progress):
+                                 progress=progress, lens_terms=lens_terms):
         name = f"{bv.camera}_{bv.view:03d}.{extension}"
         noisy = noise.apply(bv.image_grey, seed=seed * 100003 + 2 * bv.view + (bv.camera == "right"))
         atomic_write_image(out_dir / name, to_image_dtype(noisy, noise.bit_depth or 8))
@@ -118,7 +127,13 @@ def write_checkerboard_dataset(rig: StereoRig, out_dir: Path, n_views: int, seed
                 "T_right_from_left_mm": np.asarray(rig.T_right_from_left_mm).tolist(),
                 "pixel_pitch_mm": rig.pixel_pitch_mm},
         "board": {"squares": list(board.squares), "inner_corners": list(board.inner_corners),
-                  "square_mm": board.square_mm, "corners_board_mm": board.corners_board_mm().tolist()},
+                  "square_mm": board.square_mm, "corners_board_mm": board.corners_board_mm().tolist(),
+                  **({} if board.is_perfect else {
+                      "imperfections": {"print_scale_error": board.print_scale_error, "bow_sag_mm": board.bow_sag_mm,
+                                        "bow_axis": board.bow_axis, "corner_noise_mm": board.corner_noise_mm,
+                                        "corner_noise_seed": board.corner_noise_seed},
+                      "true_corners_board_mm": board.true_corners_board_mm().tolist()})},
+        **({"true_lens_terms": {k: float(v) for k, v in lens_terms.items()}} if lens_terms else {}),
         "render": {"spp": spp, "seed": seed, "bit_depth": noise.bit_depth,
                    "read_noise_grey": noise.read_noise_grey, "electrons_per_grey": noise.electrons_per_grey},
         "images": images,

@@ -113,25 +113,26 @@ def _face_roi(truth, half: int, margin_px: int = 4) -> tuple[int, int, int, int]
     return int(x0), int(y0), int(x1), int(y1)
 
 
-def reproduce_rigid_motion(out_dir: str | Path, *, scale: float = 1.0, calib: str = "rendered", lens: str = "pinhole",
-                           seed: int = 0, spp: int = 64, subset_size: int = 65, step: int = 5, states=None,
-                           progress: bool = True) -> dict:
-    """Render (or reuse) the states, measure them, score against truth, write the report. Returns the metrics."""
-    out_dir = Path(out_dir)
-    images = out_dir / "images"
-    rig, rig_text = _rig_for(calib, scale, out_dir, seed)         # a bad calibration file is refused before rendering
-    truth = _reusable_truth(images, scale=scale, lens=lens, seed=seed, spp=spp, states=states)
-    if truth is None:     # the experiment owns its image folder: an earlier or half-written render is replaced
-        truth = render_rigid_motion("paper", images, scale=scale, lens=lens, spp=spp, seed=seed, states=states,
-                                    progress=progress, overwrite=True)
-    settings = DICSettings(subset_size=subset_size, step=step, order=2)
+def measure_rigid_motion(truth, images: Path, rig: CalibratedRig, *, subset_size: int = 65, step: int = 5,
+                         order: int = 2, interpolation: str = "biquintic", lowpass_sigma_px: float = 0.0,
+                         points_dir: Path | None = None, progress: bool = True) -> dict:
+    """Measure every state of a rendered rigid-motion dataset with the instrument and score it per point.
+
+    Returns ``rows`` (one per state >= 1: points, mean/std of the error of D against the true displacement,
+    ``mean_D_mm`` and the residuals; a state that cannot be matched has ``error``), the ROI, the reference
+    shape, its triangulation errors against the truth (µm, unaligned and after one rigid alignment) and the
+    DIC noise floor figures. ``points_dir``: also write per-point CSV/VTK files there.
+    """
+    settings = DICSettings(subset_size=subset_size, step=step, order=order, interpolation=interpolation,
+                           lowpass_sigma_px=lowpass_sigma_px)
     roi = _face_roi(truth, subset_size // 2)
     left_ref = read_grey(images / truth.files[0]["left"])
     right_ref = read_grey(images / truth.files[0]["right"])
     shape = reference_shape(rig.left, rig.right, rig.R_right_from_left, rig.T_right_from_left_mm, left_ref,
                             right_ref, settings, roi=roi)
-    write_state_csv(out_dir / "points" / "reference.csv", shape)
-    write_state_vtk(out_dir / "points" / "reference.vtk", shape)
+    if points_dir is not None:
+        write_state_csv(points_dir / "reference.csv", shape)
+        write_state_vtk(points_dir / "reference.vtk", shape)
     _, X_true = truth.points_of_interest(np.column_stack([shape.x, shape.y]).astype(float))
     on_face = np.isfinite(X_true[0]).all(axis=1)
 
@@ -159,19 +160,42 @@ def reproduce_rigid_motion(out_dir: str | Path, *, scale: float = 1.0, calib: st
             rows.append({"state": k, "imposed_mm": float(truth.states_mm[k]), "error": f"{truth.files[k]}: {error}"})
             continue
         seconds = time.perf_counter() - start
-        write_state_csv(out_dir / "points" / f"state_{k:02d}.csv", shape, state)
-        write_state_vtk(out_dir / "points" / f"state_{k:02d}.vtk", shape, state)
+        if points_dir is not None:
+            write_state_csv(points_dir / f"state_{k:02d}.csv", shape, state)
+            write_state_vtk(points_dir / f"state_{k:02d}.vtk", shape, state)
         ok = state.valid & on_face
         D_true = np.linalg.norm(X_true[k] - X_true[0], axis=1)
         error_um = 1e3 * (state.D_mm[ok] - D_true[ok])
         rows.append({"state": k, "imposed_mm": float(truth.states_mm[k]), "points": int(ok.sum()), "seconds": seconds,
                      "points_total": int(ok.size), "mean_error_um": float(np.mean(error_um)),
                      "mean_abs_error_um": float(np.mean(np.abs(error_um))), "std_um": float(np.std(error_um)),
-                     "mean_D_mm": float(np.mean(state.D_mm[ok])), "median_residual_px": float(np.median(state.residual_px[ok])),
+                     "mean_D_mm": float(np.mean(state.D_mm[ok])), "std_D_um": float(1e3 * np.std(state.D_mm[ok])),
+                     "true_D_mm": float(np.mean(D_true[ok])),
+                     "median_residual_px": float(np.median(state.residual_px[ok])),
                      "p95_residual_px": state.quality.p95_residual_px,
                      # the mean vector error shows a bias that |U| (always >= 0) hides near zero displacement
                      "mean_U_error_um": (1e3 * np.mean(state.U_mm[ok] @ R_al.T - (X_true[k] - X_true[0])[ok],
                                                        axis=0)).tolist()})
+    return {"rows": rows, "roi": roi, "shape": shape, "ok0": ok0, "unaligned_um": 1e3 * unaligned,
+            "aligned_um": 1e3 * aligned, "noise_grey": noise_grey, "sigma_px": sigma_px, "footprint_mm": footprint_mm}
+
+
+def reproduce_rigid_motion(out_dir: str | Path, *, scale: float = 1.0, calib: str = "rendered", lens: str = "pinhole",
+                           seed: int = 0, spp: int = 64, subset_size: int = 65, step: int = 5, states=None,
+                           progress: bool = True) -> dict:
+    """Render (or reuse) the states, measure them, score against truth, write the report. Returns the metrics."""
+    out_dir = Path(out_dir)
+    images = out_dir / "images"
+    rig, rig_text = _rig_for(calib, scale, out_dir, seed)         # a bad calibration file is refused before rendering
+    truth = _reusable_truth(images, scale=scale, lens=lens, seed=seed, spp=spp, states=states)
+    if truth is None:     # the experiment owns its image folder: an earlier or half-written render is replaced
+        truth = render_rigid_motion("paper", images, scale=scale, lens=lens, spp=spp, seed=seed, states=states,
+                                    progress=progress, overwrite=True)
+    m = measure_rigid_motion(truth, images, rig, subset_size=subset_size, step=step, points_dir=out_dir / "points",
+                             progress=progress)
+    rows, roi, shape = m["rows"], m["roi"], m["shape"]
+    ok0, unaligned, aligned = m["ok0"], m["unaligned_um"] / 1e3, m["aligned_um"] / 1e3
+    noise_grey, sigma_px, footprint_mm = m["noise_grey"], m["sigma_px"], m["footprint_mm"]
     measured = [r for r in rows if "error" not in r]
     imposed = np.array([r["imposed_mm"] for r in measured])
     goals = _paper_goal(imposed)

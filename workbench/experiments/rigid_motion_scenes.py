@@ -19,6 +19,7 @@ sharp only near its centre line; ``truth.json`` records the largest defocus blur
 """
 from __future__ import annotations
 
+import dataclasses
 import json
 import warnings
 from dataclasses import dataclass, field
@@ -30,7 +31,9 @@ from tqdm import tqdm
 from measurement.files import atomic_write_image, atomic_write_text
 
 from scenes.camera import SensorSpec
-from scenes.motion import STAGE_UP_WORLD, stage_direction, stage_poses, stage_states_mm
+from scenes.drift import CameraDrift, drifted_pose
+from scenes.illumination import IlluminationChange
+from scenes.motion import STAGE_UP_WORLD, StageErrors, stage_direction, stage_poses, stage_states_mm
 from scenes.noise import SensorNoise, to_image_dtype
 from scenes.render import render_view
 from scenes.specimens import BendingSpecimen
@@ -197,11 +200,15 @@ def focus_plane_angle_deg(spec: SensorSpec, R_cam_from_world, t_cam_from_world_m
 # ------------------------------------------------------------------------------------------------------------
 def rigid_motion_truth(rig: StereoRig, *, lens: str = "thin", f_number: float = DEFAULT_F_NUMBER,
                        states_mm=None, specimen: BendingSpecimen | None = None, centre_world_mm=None,
-                       direction_world=STAGE_UP_WORLD, seed: int = 0) -> RigidMotionTruth:
+                       direction_world=STAGE_UP_WORLD, seed: int = 0, stage_errors: StageErrors | None = None,
+                       lens_terms: dict | None = None) -> RigidMotionTruth:
     """Set up the scene (no rendering): specimen, poses of every state, cameras; checks the view.
 
     ``specimen`` defaults to :meth:`BendingSpecimen.for_pixel_size` at the left camera's pixel footprint at
-    the working distance (5 px speckles at any ``scale``), with speckle seed ``seed``.
+    the working distance (5 px speckles at any ``scale``), with speckle seed ``seed``. ``stage_errors``: the
+    stage really moves the specimen by :func:`scenes.motion.true_stage_displacements_mm` (``states_mm`` stay
+    the stage's readings). ``lens_terms``: distortion terms of the true lenses the rig's model lacks
+    (``k3``, ``s1``-``s4`` of :class:`scenes.camera.SensorSpec`).
     """
     states = stage_states_mm() if states_mm is None else np.asarray(states_mm, dtype=float).reshape(-1)
     if states.size == 0 or not np.all(np.isfinite(states)):
@@ -210,10 +217,16 @@ def rigid_motion_truth(rig: StereoRig, *, lens: str = "thin", f_number: float = 
     if specimen is None:
         pixel_mm = float(np.linalg.norm(t0)) / rig.left.fx
         specimen = BendingSpecimen.for_pixel_size(pixel_mm, seed=seed)
-    poses = stage_poses(R0, t0, states, direction_world)
+    poses = stage_poses(R0, t0, states, direction_world, errors=stage_errors)
     specs = rigid_motion_specs(rig, lens, f_number, t0)
+    if lens_terms:
+        specs = {side: spec.with_(**lens_terms) for side, spec in specs.items()}
     check_specimen_in_view(specimen, poses, specs, rig)
     info: dict = {"lens": lens}
+    if stage_errors is not None and not stage_errors.is_zero:
+        info["stage_errors"] = dataclasses.asdict(stage_errors)
+    if lens_terms:
+        info["true_lens_terms"] = {k: float(v) for k, v in lens_terms.items()}
     if lens == "thin":
         blur = {side: max(face_blur_px(specimen, pose, specs[side], *rig.pose(side)) for pose in poses)
                 for side in SIDES}
@@ -231,7 +244,10 @@ def rigid_motion_truth(rig: StereoRig, *, lens: str = "thin", f_number: float = 
 def render_rigid_motion(rig: StereoRig | str, out_dir, scale: float = 1.0, lens: str = "thin", spp: int = 64,
                         seed: int = 0, noise_grey: float = 1.0, states=None, *,
                         f_number: float = DEFAULT_F_NUMBER, specimen: BendingSpecimen | None = None,
-                        centre_world_mm=None, progress: bool = True, overwrite: bool = False) -> RigidMotionTruth:
+                        centre_world_mm=None, progress: bool = True, overwrite: bool = False,
+                        stage_errors: StageErrors | None = None, drift: CameraDrift | None = None,
+                        illumination: IlluminationChange | None = None, lens_terms: dict | None = None,
+                        electrons_per_grey: float | None = None) -> RigidMotionTruth:
     """Render the rigid-motion test in both cameras and write ``left_KK.png``, ``right_KK.png``, ``truth.json``
     and ``manifest.json`` (truth and manifest last: a folder with a manifest is complete).
 
@@ -249,6 +265,10 @@ def render_rigid_motion(rig: StereoRig | str, out_dir, scale: float = 1.0, lens:
     centre_world_mm : where the front-face centre sits in state 0 (default: where the optical axes meet)
     overwrite : replace an earlier dataset in ``out_dir`` (deletes exactly the files its manifest lists); without
         it such a folder is refused (:class:`workbench.manifest.DatasetFolderError`)
+    stage_errors, drift, illumination, lens_terms, electrons_per_grey : error sources (DESIGN §7), each off by
+        default: the stage's own errors (:class:`scenes.motion.StageErrors`), a camera drifting between states
+        (:class:`scenes.drift.CameraDrift`), an illumination change between states
+        (:class:`scenes.illumination.IlluminationChange`), true-lens terms the rig's model lacks, shot noise.
 
     Returns
     -------
@@ -257,9 +277,10 @@ def render_rigid_motion(rig: StereoRig | str, out_dir, scale: float = 1.0, lens:
     rig, rig_scale = resolve_rig(rig, scale)
     if spp < 1:
         raise ValueError(f"spp must be >= 1, got {spp}")
-    noise = SensorNoise(read_noise_grey=noise_grey, bit_depth=8)
+    noise = SensorNoise(read_noise_grey=noise_grey, electrons_per_grey=electrons_per_grey, bit_depth=8)
     truth = rigid_motion_truth(rig, lens=lens, f_number=f_number, states_mm=states, specimen=specimen,
-                               centre_world_mm=centre_world_mm, seed=seed)
+                               centre_world_mm=centre_world_mm, seed=seed, stage_errors=stage_errors,
+                               lens_terms=lens_terms)
     out_dir = Path(out_dir)
     digits = max(2, len(str(len(truth.poses) - 1)))
     planned = [f"{side}_{k:0{digits}d}.png" for k in range(len(truth.poses)) for side in SIDES]
@@ -267,9 +288,18 @@ def render_rigid_motion(rig: StereoRig | str, out_dir, scale: float = 1.0, lens:
     texture = truth.specimen.texture()
     files = render_stereo_states(truth, lambda k: truth.specimen.surfaces(*truth.poses[k], texture=texture),
                                  len(truth.poses), out_dir, noise, spp=spp, seed=seed,
-                                 desc=f"rendering rigid motion ({lens})", progress=progress)
+                                 desc=f"rendering rigid motion ({lens})", progress=progress, drift=drift,
+                                 illumination=illumination)
     truth.files = files
     truth.info.update(render_info(rig, rig_scale, spp, seed, noise_grey))
+    if electrons_per_grey is not None:
+        truth.info["render"]["electrons_per_grey"] = float(electrons_per_grey)
+    if drift is not None and not drift.is_zero:
+        truth.info["camera_drift"] = {**dataclasses.asdict(drift), "camera_poses_as_rendered": [
+            {side: [np.asarray(a).tolist() for a in drifted_pose(*truth.camera_poses[side], drift, k, camera=side)]
+             for side in SIDES} for k in range(len(truth.poses))]}
+    if illumination is not None and not illumination.is_zero:
+        truth.info["illumination_change"] = dataclasses.asdict(illumination)
     atomic_write_text(out_dir / "truth.json", json.dumps(_truth_to_json(truth), indent=1))
     complete_folder(out_dir, "rigid-motion", [n for names in files for n in names.values()] + ["truth.json"],
                     {"rig": rig.name, "scale": rig_scale, "lens": lens, **truth.info["render"],
@@ -288,12 +318,15 @@ def resolve_rig(rig: StereoRig | str, scale: float) -> tuple[StereoRig, float | 
 
 
 def render_stereo_states(truth, surfaces_of_state, n_states: int, out_dir: Path, noise: SensorNoise, *, spp: int,
-                         seed: int, desc: str, progress: bool = True) -> list[dict[str, str]]:
+                         seed: int, desc: str, progress: bool = True, drift: CameraDrift | None = None,
+                         illumination: IlluminationChange | None = None) -> list[dict[str, str]]:
     """Render every state in both cameras as 8-bit ``left_KK.png`` / ``right_KK.png`` (atomic writes).
 
     ``truth`` provides ``specs`` and ``camera_poses``; ``surfaces_of_state(k)`` the scene of state k. One seed per
     image (``seed * 100003 + 2 k + camera``): Monte-Carlo noise is pixel-locked, so states must not share it.
-    Returns the file names per state.
+    ``drift``: the drifting camera renders state k from :func:`scenes.drift.drifted_pose`; ``illumination``:
+    the scene radiance of state k changes (:meth:`scenes.illumination.IlluminationChange.apply`) before the
+    sensor noise. Returns the file names per state.
     """
     digits = max(2, len(str(n_states - 1)))
     files = []
@@ -302,10 +335,12 @@ def render_stereo_states(truth, surfaces_of_state, n_states: int, out_dir: Path,
         names = {}
         for c, side in enumerate(SIDES):
             image_seed = seed * 100003 + 2 * k + c
-            result = render_view(truth.specs[side], *truth.camera_poses[side], surfaces, spp=spp, seed=image_seed,
+            pose = drifted_pose(*truth.camera_poses[side], drift, k, camera=side)
+            result = render_view(truth.specs[side], *pose, surfaces, spp=spp, seed=image_seed,
                                  exposure_grey=EXPOSURE_GREY[8])
+            image = result.image_grey if illumination is None else illumination.apply(result.image_grey, k)
             names[side] = f"{side}_{k:0{digits}d}.png"
-            atomic_write_image(out_dir / names[side], to_image_dtype(noise.apply(result.image_grey, seed=image_seed), 8))
+            atomic_write_image(out_dir / names[side], to_image_dtype(noise.apply(image, seed=image_seed), 8))
         files.append(names)
     return files
 

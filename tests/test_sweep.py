@@ -1,0 +1,251 @@
+"""Studies on Dask: a real LocalCluster, a killed sweep resumed, a separately started scheduler and worker.
+
+The physics check is Pan et al. 2008: the random error of 2-D subset DIC with Gaussian noise sigma in both
+images is sqrt(2) sigma / sqrt(sum f_x^2 over the subset); the floor is computed from the exact image gradient,
+independently of the DIC engine.
+"""
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from workbench.store import DatasetStore
+from workbench.study import load_study
+from workbench.study_report import gather, write_study_outputs
+from workbench.sweep import run_sweep
+
+WORKBENCH = [sys.executable, "-m", "workbench.cli"]
+
+NOISE_SUBSET = """
+[study]
+name = "noise x subset (test)"
+repeats = 3
+[scenario]
+experiment = "dic2d"
+[scenario.render]
+bit_depth = 0
+[scenario.image2d]
+size_px = 512
+[instrument]
+step_px = 7
+shape_order = 1
+[[axis]]
+name = "noise_grey"
+parameter = "scenario.render.read_noise_grey"
+values = [1.0, 3.0]
+[[axis]]
+name = "subset_px"
+parameter = "instrument.subset_px"
+values = [21, 41]
+"""
+
+
+def _study(tmp_path, text=NOISE_SUBSET, name="study.toml"):
+    path = tmp_path / name
+    path.write_text(text)
+    return load_study(path)
+
+
+def test_noise_by_subset_study_on_a_local_cluster_follows_the_pan_2008_floor_within_10_percent(tmp_path):
+    """2 x 2 grid (noise 1 and 3 grey x subset 21 and 41 px), 3 seeds, on a LocalCluster of 2 process workers:
+    at every grid point the random error (pooled over the seeds) is within 10 % of sqrt(2) sigma / sqrt(SSSIG)."""
+    study = _study(tmp_path)
+    summary = run_sweep(study, tmp_path / "out", store=DatasetStore(tmp_path / "store"), workers=2, progress=False)
+    assert (summary.total, summary.computed, summary.failed) == (12, 12, 0)
+    assert len({r["pid"] for r in summary.records}) == 2            # both worker processes took cases
+    ds = gather(study, summary.records)
+    assert dict(ds["random_error_px"].sizes) == {"noise_grey": 2, "subset_px": 2, "repeat": 3}
+    rms = lambda da: np.sqrt((da ** 2).mean("repeat"))              # noqa: E731 - pooled over the seeds
+    ratio = rms(ds["random_error_px"]) / rms(ds["predicted_error_px"])
+    assert np.all(np.abs(ratio.values - 1.0) <= 0.10), ratio.values
+    # the floor scales with sigma and shrinks with the subset, as the formula says
+    floor = ds["predicted_error_px"].mean("repeat")
+    assert floor.sel(noise_grey=3.0).values == pytest.approx(3.0 * floor.sel(noise_grey=1.0).values, rel=1e-9)
+    assert np.all(floor.sel(subset_px=41).values < floor.sel(subset_px=21).values)
+    paths = write_study_outputs(study, tmp_path / "out", summary.records, ["test"], {})
+    import xarray as xr
+    back = xr.open_dataset(paths["netcdf"], engine="scipy")
+    assert np.allclose(back["random_error_px"].values, ds["random_error_px"].values, equal_nan=True)
+    assert back.attrs["study_text"] == study.source_text
+    html = paths["html"].read_text()
+    assert html.count("data:image/png;base64,") >= 5 and "noise x subset (test)" in html
+
+
+def test_renders_are_stored_once_by_content_and_reused_across_instrument_settings(tmp_path):
+    """The subset axis does not change the images: 2 noise levels x 3 seeds = 6 datasets for 12 cases."""
+    study = _study(tmp_path)
+    store = DatasetStore(tmp_path / "store")
+    summary = run_sweep(study, tmp_path / "out", store=store, workers=1, progress=False)
+    datasets = sorted(p.name for p in store.root.iterdir() if not p.name.startswith("."))
+    assert len(datasets) == 6
+    assert sum(r["reused"]["images"] for r in summary.records) == 6
+    assert {r["datasets"]["images"] for r in summary.records} == {d.split("-", 1)[1] for d in datasets}
+
+
+def test_a_partial_dataset_is_never_read_and_a_dead_process_partial_is_cleared(tmp_path):
+    store = DatasetStore(tmp_path / "store")
+    calls = []
+
+    def render(folder):
+        from workbench.manifest import complete_folder
+        (folder / "a.txt").write_text("x")
+        complete_folder(folder, "demo", ["a.txt"])
+        calls.append(folder)
+
+    # a folder under the hash without a manifest (an interrupted write) is not a dataset
+    (store.path("demo", "abc")).mkdir(parents=True)
+    (store.path("demo", "abc") / "a.txt").write_text("half")
+    assert store.find("demo", "abc") is None
+    folder, reused = store.ensure("demo", "abc", {"k": 1}, render)
+    assert (reused, len(calls), (folder / "a.txt").read_text()) == (False, 1, "x")
+    assert store.ensure("demo", "abc", {"k": 1}, render) == (folder, True) and len(calls) == 1
+    dead = subprocess.Popen([sys.executable, "-c", "pass"])
+    dead.wait()
+    (store.root / ".partial" / f"demo-def-{dead.pid}").mkdir(parents=True)
+    (store.root / ".partial" / f"demo-ghi-{os.getpid()}").mkdir(parents=True)
+    removed = store.clear_partials()
+    assert [p.name for p in removed] == [f"demo-def-{dead.pid}"]
+
+
+def _run_cli(args, **kw):
+    return subprocess.run(WORKBENCH + args, capture_output=True, text=True, **kw)
+
+
+def test_a_killed_sweep_resumes_with_every_case_once_and_none_recomputed(tmp_path):
+    """SIGTERM to the client and its workers halfway; the same command then finishes the rest only."""
+    study_path = tmp_path / "study.toml"
+    study_path.write_text(NOISE_SUBSET.replace("values = [21, 41]", "values = [21, 31, 41]")
+                          .replace("values = [1.0, 3.0]", "values = [1.0, 2.0, 3.0]"))
+    out, store = tmp_path / "out", tmp_path / "store"
+    args = ["sweep", str(study_path), "--workers", "2", "--store", str(store), "--quiet", "--out", str(out)]
+    proc = subprocess.Popen(WORKBENCH + args, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+                            start_new_session=True)
+    cases = out / "cases"
+    deadline = time.monotonic() + 240
+    while time.monotonic() < deadline and len(list(cases.glob("*.json"))) < 6 and proc.poll() is None:
+        time.sleep(0.05)
+    os.killpg(proc.pid, signal.SIGTERM)               # the client and every worker process of its session
+    proc.wait(timeout=60)
+    time.sleep(1.0)
+    before = {p.name: (p.stat().st_mtime_ns, json.loads(p.read_text())["run_id"]) for p in cases.glob("*.json")}
+    assert 6 <= len(before) < 27, f"the kill did not land halfway: {len(before)} of 27 cases done"
+    again = _run_cli(args, timeout=600)
+    assert again.returncode == 0, again.stdout + again.stderr
+    after = {p.name: (p.stat().st_mtime_ns, json.loads(p.read_text())["run_id"]) for p in cases.glob("*.json")}
+    assert len(after) == 27                            # every case present, once (one record per case hash)
+    assert all(after[name] == before[name] for name in before)      # none recomputed, none rewritten
+    log = json.loads((out / "sweep-log.json").read_text())
+    assert (log["already_done"], log["computed"], log["failed"]) == (len(before), 27 - len(before), 0)
+    assert len({run for _, run in after.values()}) == 2
+    assert f"{len(before)} already done" in again.stdout
+
+
+def test_sweep_runs_on_a_separately_started_dask_scheduler_and_worker(tmp_path):
+    """``dask scheduler`` and ``dask worker`` as their own processes on localhost; ``--scheduler`` uses them."""
+    scheduler_file = tmp_path / "scheduler.json"
+    dask_cli = Path(sys.executable).with_name("dask")
+    env = {**os.environ, "NUMBA_NUM_THREADS": "1", "OMP_NUM_THREADS": "1"}
+    scheduler = subprocess.Popen([str(dask_cli), "scheduler", "--host", "127.0.0.1", "--port", "0",
+                                  "--no-dashboard", "--scheduler-file", str(scheduler_file)],
+                                 stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, env=env)
+    worker = None
+    try:
+        deadline = time.monotonic() + 60
+        while not scheduler_file.is_file() and time.monotonic() < deadline:
+            time.sleep(0.1)
+        address = json.loads(scheduler_file.read_text())["address"]
+        worker = subprocess.Popen([str(dask_cli), "worker", address, "--nworkers", "1", "--nthreads", "1",
+                                   "--no-dashboard", "--name", "test-worker"],
+                                  stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, env=env)
+        study_path = tmp_path / "study.toml"
+        study_path.write_text(NOISE_SUBSET.replace("repeats = 3", "repeats = 1").replace("size_px = 512", "size_px = 256"))
+        result = _run_cli(["sweep", str(study_path), "--scheduler", address, "--store", str(tmp_path / "store"),
+                           "--quiet", "--out", str(tmp_path / "out")], timeout=300)
+        assert result.returncode == 0, result.stdout + result.stderr
+        log = json.loads((tmp_path / "out" / "sweep-log.json").read_text())
+        assert (log["computed"], log["scheduler"]) == (4, address)
+        records = [json.loads(p.read_text()) for p in (tmp_path / "out" / "cases").glob("*.json")]
+        # the cases ran in the worker's process, not in the client's
+        assert len(records) == 4 and all(r["pid"] not in (os.getpid(),) for r in records)
+        assert len({r["pid"] for r in records}) == 1
+    finally:
+        for proc in (worker, scheduler):
+            if proc is not None:
+                proc.terminate()
+        for proc in (worker, scheduler):
+            if proc is not None:
+                proc.wait(timeout=30)
+    assert scheduler.returncode is not None and (worker is None or worker.returncode is not None)
+
+
+def test_a_bad_study_file_is_refused_before_any_work_naming_the_file_and_key(tmp_path):
+    path = tmp_path / "bad.toml"
+    path.write_text(NOISE_SUBSET.replace("scenario.render.read_noise_grey", "scenario.render.noise_grey"))
+    result = _run_cli(["sweep", str(path), "--out", str(tmp_path / "out"), "--store", str(tmp_path / "store")])
+    assert result.returncode == 2
+    assert "bad.toml: axis[0] (noise_grey): scenario.render.noise_grey: no such parameter" in result.stderr
+    assert not (tmp_path / "out").exists() and not (tmp_path / "store").exists()
+    result = _run_cli(["sweep", str(path), "--scheduler", "tcp://127.0.0.1:1", "--out", str(tmp_path / "out")])
+    assert result.returncode == 2 and "bad.toml" in result.stderr
+
+
+BUDGET = """
+[study]
+name = "2-D noise budget (test)"
+seeds = [0, 1]
+[scenario]
+experiment = "dic2d"
+[scenario.render]
+bit_depth = 0
+read_noise_grey = 0.0
+[scenario.image2d]
+size_px = 384
+[instrument]
+subset_px = 25
+step_px = 9
+shape_order = 1
+[[budget.source]]
+name = "read noise 2 grey"
+set = { "scenario.render.read_noise_grey" = 2.0 }
+[[budget.source]]
+name = "shot noise 40 e-/grey"
+set = { "scenario.render.electrons_per_grey" = 40.0 }
+"""
+
+
+def test_budget_of_two_independent_noise_sources_adds_in_quadrature_within_10_percent(tmp_path):
+    """Read noise (2 grey) and shot noise (mean 128 grey at 40 e-/grey: 1.8 grey) are independent: the random
+    error with both is the quadrature sum of each alone (10 %), and clearly not their linear sum."""
+    path = tmp_path / "budget.toml"
+    path.write_text(BUDGET)
+    result = _run_cli(["budget", str(path), "--metric", "random_error_px", "--workers", "2", "--quiet",
+                       "--store", str(tmp_path / "store"), "--out", str(tmp_path / "out")], timeout=600)
+    assert result.returncode == 0, result.stdout + result.stderr
+    budget = json.loads((tmp_path / "out" / "budget.json").read_text())
+    check = budget["check"]
+    assert [r["case"] for r in budget["rows"]] == ["baseline", "read noise 2 grey", "shot noise 40 e-/grey",
+                                                   "all sources"]
+    assert check["baseline"] < 0.02 * check["all_together"]          # noise-free: only interpolation bias spread
+    assert abs(check["quadrature_sum_vs_all"] - 1.0) <= 0.10
+    assert check["linear_sum_vs_all"] > 1.25
+    assert check["dominant_source"] == "read noise 2 grey"
+    assert "data:image/png;base64," in (tmp_path / "out" / "report.html").read_text()
+
+
+def test_budget_refuses_a_metric_or_source_that_does_not_exist_before_any_work(tmp_path):
+    path = tmp_path / "budget.toml"
+    path.write_text(BUDGET)
+    result = _run_cli(["budget", str(path), "--metric", "random_error", "--out", str(tmp_path / "out")])
+    assert result.returncode == 2 and "--metric random_error: not a metric of the dic2d experiment" in result.stderr
+    path.write_text(BUDGET.replace("scenario.render.electrons_per_grey", "scenario.render.electrons"))
+    result = _run_cli(["budget", str(path), "--metric", "random_error_px", "--out", str(tmp_path / "out")])
+    assert result.returncode == 2
+    assert "budget.toml: budget.source[1] (shot noise 40 e-/grey): scenario.render.electrons: no such parameter" \
+        in result.stderr
+    assert not (tmp_path / "out").exists()

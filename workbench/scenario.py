@@ -1,0 +1,211 @@
+"""Scenarios and instruments as data (DESIGN §6): what is rendered, and how it is measured.
+
+A :class:`Scenario` is the complete description of one virtual experiment on the truth side: the rig and its
+lens, the calibration target and its imperfections, the speckle, the motion states, every error source, the
+render settings and the seed. An :class:`Instrument` is the measurement side: calibration model, subset,
+step, shape function, interpolant, pre-filter, strain window. Both are frozen dataclasses that load from and
+save to TOML/JSON (:mod:`workbench.config`: unknown keys and wrong types are refused naming the key) and have
+a stable content hash.
+
+Every error source is off by default and is one physical parameter with its unit in the name; the
+docstrings give realistic ranges and their sources. The instrument never sees these parameters: it sees only
+the rendered images, as with a real rig.
+
+A scenario renders into one or more *datasets* (:func:`dataset_parts`): each is keyed by the hash of only
+the sections that change its images, so a study that varies, say, the stage error reuses the calibration
+renders of every case.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+from workbench.config import content_hash, hash_of, to_dict
+
+EXPERIMENTS = ("dic2d", "rigid_motion")
+
+
+def _f(default, doc: str = "", **meta):
+    """A config field with its documentation (unit, range, source) and bounds/choices."""
+    return field(default=default, metadata={"doc": doc, **meta})
+
+
+@dataclass(frozen=True)
+class RigConfig:
+    """The true stereo rig (:func:`workbench.rigs.get_rig`) and its lens."""
+
+    name: str = _f("paper", "true rig: 'paper' (Table 1) or 'scheimpflug' (tilts solved for the face)",
+                   choices=("paper", "scheimpflug"))
+    scale: float = _f(0.25, "image resolution relative to the paper's 2448 x 2048 px (focal lengths scale too)",
+                      min=0.05, max=1.0)
+    lens: str = _f("pinhole", "'pinhole' or 'thin' (defocus: a thin lens focused on the face centre)",
+                   choices=("pinhole", "thin"))
+    f_number: float = _f(8.0, "thin-lens f-number (defocus grows as 1/N); f/2.8-f/16 in DIC practice",
+                         min=0.5, max=64.0)
+
+
+@dataclass(frozen=True)
+class RenderConfig:
+    """Rendering and the sensor: Monte-Carlo noise (spp), read and shot noise, bit depth."""
+
+    spp: int = _f(64, "samples per pixel (stratified); Monte-Carlo noise ~ 1/sqrt(spp)", min=1, max=4096)
+    bit_depth: int = _f(8, "bits per pixel of the written images; 0: float images, no quantisation (dic2d only)",
+                        choices=(0, 8, 16))
+    read_noise_grey: float = _f(1.0, "Gaussian read noise, grey levels of the bit depth (machine-vision "
+                                     "cameras: 0.5-3 grey at 8 bit; EMVA 1288 data sheets)", min=0.0, max=100.0)
+    electrons_per_grey: float | None = _f(None, "shot noise: sensor gain in electrons per grey level (absent: "
+                                                "no shot noise); 5-50 e-/grey at 8 bit for 10 ke- full well",
+                                          min=1e-3, max=1e6)
+
+
+@dataclass(frozen=True)
+class SpeckleConfig:
+    """The speckle pattern, in image pixels (it scales with the rig)."""
+
+    size_px: float | None = _f(None, "speckle size in px: autocorrelation size in 2-D (absent: 4 px), painted "
+                                     "speckle size at the working distance in 3-D (absent: 5 px); 3-5 px "
+                                     "recommended (iDICs Good Practices Guide 2018)", min=1.5, max=30.0)
+    density: float = _f(0.5, "fraction of the surface covered by speckles (0.4-0.6 typical)", min=0.05, max=0.95)
+    contrast: float = _f(1.0, "pattern contrast relative to the default (grey std 30 of mean 128 in 2-D, "
+                              "0.8 of the radiance range in 3-D)", min=0.05, max=1.2)
+
+
+@dataclass(frozen=True)
+class Image2DConfig:
+    """The 2-D DIC experiment: an exactly translated periodic speckle image pair (``dic2d``)."""
+
+    size_px: int = _f(256, "image side (square images)", min=32, max=4096)
+    shift_x_px: float = _f(0.25, "imposed translation along x (px)", min=-8.0, max=8.0)
+    shift_y_px: float = _f(0.0, "imposed translation along y (px)", min=-8.0, max=8.0)
+
+
+@dataclass(frozen=True)
+class TargetConfig:
+    """The calibration board (the paper's 12 x 9 squares of 5 mm) and its imperfections."""
+
+    calibration_views: int = _f(30, "stereo views used for calibration (the paper: 30)", min=3, max=500)
+    square_mm: float = _f(5.0, "nominal square size the instrument is told (the paper: 5 mm)", min=0.5, max=100.0)
+    max_tilt_deg: float = _f(40.0, "largest board tilt of the random views (small: 'too flat' views)",
+                             min=0.0, max=60.0)
+    print_scale_error: float = _f(0.0, "printed squares are (1 + e) x nominal; office printers and paper "
+                                       "shrinkage: 1e-3-5e-3", min=-0.1, max=0.1)
+    bow_sag_mm: float = _f(0.0, "board bow: sag at the centre of the checkered area (positive: towards the "
+                                "cameras); cardboard 0.1-2 mm over 100 mm", min=-10.0, max=10.0)
+    bow_axis: str = _f("y", "bow: cylinder about the board's 'x' or 'y' axis, or a 'sphere'",
+                       choices=("x", "y", "sphere"))
+    corner_noise_mm: float = _f(0.0, "printed corner position noise (std, in-plane); printers 0.005-0.03 mm",
+                                min=0.0, max=1.0)
+
+
+@dataclass(frozen=True)
+class MotionConfig:
+    """The stage states of the rigid-motion test and the stage's own errors."""
+
+    max_mm: float = _f(10.0, "largest stage travel (the paper: 10 mm)", min=0.001, max=100.0)
+    step_mm: float = _f(1.0, "stage step (the paper: 1 mm)", min=0.001, max=100.0)
+    return_to_zero: bool = _f(False, "also measure the way back (0 -> max -> 0), as the paper's protocol")
+    stage_scale_error: float = _f(0.0, "the stage really moves (1 + e) x its reading; precision stages "
+                                       "1e-4-1e-3 (PI, Newport data sheets)", min=-0.1, max=0.1)
+    stage_straightness_um: float = _f(0.0, "peak lateral deviation over the travel (µm); 1-10 µm over "
+                                           "25-100 mm (data sheets)", min=0.0, max=1000.0)
+    stage_axis_tilt_deg: float = _f(0.0, "true stage axis tilted from the nominal (deg)", min=-10.0, max=10.0)
+
+
+@dataclass(frozen=True)
+class DriftConfig:
+    """Camera drift between states (thermal or mechanical): a small extrinsic change, linear in the state."""
+
+    camera: str = _f("right", "which camera drifts", choices=("left", "right"))
+    translation_um_per_state: tuple[float, float, float] = _f(
+        (0.0, 0.0, 0.0), "camera translation per state, its own frame (µm); warm-up drift of 0.1-0.5 px over "
+                         "an hour (Ma, Pang, Ma 2012, Meas. Sci. Technol. 23 025403)", min=-1e4, max=1e4)
+    rotation_urad_per_state: tuple[float, float, float] = _f(
+        (0.0, 0.0, 0.0), "camera rotation vector per state, its own frame (µrad)", min=-1e5, max=1e5)
+
+
+@dataclass(frozen=True)
+class IlluminationConfig:
+    """Illumination change between states (applied to the scene radiance before sensor noise)."""
+
+    gain_per_state: float = _f(0.0, "relative brightness change per state (a few % over a test)",
+                               min=-0.2, max=0.2)
+    offset_grey_per_state: float = _f(0.0, "grey levels added per state", min=-50.0, max=50.0)
+    gradient_per_state: float = _f(0.0, "relative brightness ramp across the image width per state",
+                                   min=-0.2, max=0.2)
+
+
+@dataclass(frozen=True)
+class LensConfig:
+    """Terms of the TRUE lens that the instrument's model (k1 k2 p1 p2) does not have."""
+
+    k3: float = _f(0.0, "radial r^6 term (OpenCV k3); worth 1.6-3.3 px at the corners of the DIC Challenge "
+                        "1.0 Sample 3 calibration; on the paper rig k3 = 50 moves the far corner ~2.8 px",
+                   min=-500.0, max=500.0)
+    s1: float = _f(0.0, "thin prism x r^2 (OpenCV s1); 1e-4-1e-3 (Weng et al. 1992)", min=-0.1, max=0.1)
+    s2: float = _f(0.0, "thin prism x r^4 (OpenCV s2)", min=-0.1, max=0.1)
+    s3: float = _f(0.0, "thin prism y r^2 (OpenCV s3)", min=-0.1, max=0.1)
+    s4: float = _f(0.0, "thin prism y r^4 (OpenCV s4)", min=-0.1, max=0.1)
+
+
+@dataclass(frozen=True)
+class Scenario:
+    """One virtual experiment, truth side. ``experiment`` says which parts are used:
+
+    * ``dic2d``: ``image2d``, ``speckle``, ``render`` (noise, bit depth), ``seed``;
+    * ``rigid_motion``: ``rig``, ``target`` (calibration views), ``speckle``, ``motion``, ``drift``,
+      ``illumination``, ``lens``, ``render``, ``seed``.
+    """
+
+    experiment: str = _f("dic2d", "which virtual experiment", choices=EXPERIMENTS)
+    seed: int = _f(0, "seeds every random thing (speckle, poses, sampler, noise)", min=0, max=2 ** 31 - 1)
+    rig: RigConfig = field(default_factory=RigConfig)
+    render: RenderConfig = field(default_factory=RenderConfig)
+    speckle: SpeckleConfig = field(default_factory=SpeckleConfig)
+    image2d: Image2DConfig = field(default_factory=Image2DConfig)
+    target: TargetConfig = field(default_factory=TargetConfig)
+    motion: MotionConfig = field(default_factory=MotionConfig)
+    drift: DriftConfig = field(default_factory=DriftConfig)
+    illumination: IlluminationConfig = field(default_factory=IlluminationConfig)
+    lens: LensConfig = field(default_factory=LensConfig)
+
+
+@dataclass(frozen=True)
+class Instrument:
+    """The measurement settings (the instrument side of a study)."""
+
+    calibration: str = _f("rendered", "'rendered' (calibrate from the rendered board views) or 'true' (the true "
+                                      "rig, no calibration error)", choices=("rendered", "true"))
+    calibration_model: str = _f("rmm", "tilt model: the paper's 'rmm' or the conventional 'pinhole'",
+                                choices=("rmm", "pinhole"))
+    subset_px: int = _f(33, "subset size (odd)", min=5, max=401)
+    step_px: int = _f(10, "grid step between points of interest", min=1, max=400)
+    shape_order: int = _f(2, "subset shape function order", choices=(1, 2))
+    interpolation: str = _f("biquintic", "sub-pixel interpolant", choices=("biquintic", "bicubic"))
+    prefilter_sigma_px: float = _f(0.0, "Gaussian pre-filter of both images (0: none)", min=0.0, max=5.0)
+    strain_window: int = _f(15, "strain window in points (k x k)", min=3, max=101)
+
+    def __post_init__(self):
+        if self.subset_px % 2 == 0:
+            raise ValueError(f"subset_px must be odd, got {self.subset_px}")
+
+
+#: Which sections of a scenario change the images of each dataset it renders.
+DATASET_SECTIONS = {
+    "dic2d": {"images": ("experiment", "seed", "render", "speckle", "image2d")},
+    "rigid_motion": {"calibration": ("seed", "rig", "render", "target", "lens"),
+                     "states": ("seed", "rig", "render", "speckle", "motion", "drift", "illumination", "lens")},
+}
+
+
+def dataset_parts(scenario: Scenario) -> dict[str, tuple[str, dict]]:
+    """The datasets a scenario renders: ``{part: (hash, the content it is the hash of)}``."""
+    data = to_dict(scenario)
+    out = {}
+    for part, sections in DATASET_SECTIONS[scenario.experiment].items():
+        content = {"experiment": scenario.experiment, "part": part, **{s: data.get(s) for s in sections}}
+        out[part] = (hash_of(content), content)
+    return out
+
+
+def case_hash(scenario: Scenario, instrument: Instrument) -> str:
+    """Hash of one measured case: the scenario and the instrument together."""
+    return hash_of({"scenario": content_hash(scenario), "instrument": content_hash(instrument)})

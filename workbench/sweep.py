@@ -1,0 +1,202 @@
+"""Run a study on Dask: one task per case, records written atomically, a killed sweep resumes.
+
+* The engine is ``dask.distributed``: a :class:`distributed.LocalCluster` of process workers by default (one
+  thread each: Dr.Jit and numba keep per-process state, and a case already uses a core), or an existing
+  cluster when a scheduler address is given (``dask scheduler`` / ``dask worker`` started elsewhere; the
+  workers must see the same store and output folders, e.g. on one machine or a shared file system).
+* Each case is keyed by the hash of its scenario and instrument. Its record ``<out>/cases/<hash>.json`` is
+  written by the worker, atomically, as soon as the case finishes; a rerun of the same study skips every case
+  whose record exists, so a killed sweep (client, workers or both) loses nothing that finished and recomputes
+  nothing. A failed case is recorded as ``<hash>.failed.json`` with its error and retried by the next run.
+* Renders go to the dataset store (:mod:`workbench.store`), shared by all cases and studies.
+"""
+from __future__ import annotations
+
+import json
+import logging
+import os
+import time
+import uuid
+from dataclasses import dataclass
+from pathlib import Path
+
+from measurement.files import atomic_write_text
+from workbench.config import to_dict
+from workbench.store import DatasetStore
+from workbench.study import Case, Study
+
+#: Environment of LocalCluster workers: one thread per library, since each worker process is one case at a time.
+WORKER_ENV = {"OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1",
+              "NUMBA_NUM_THREADS": "1", "DRJIT_NUM_THREADS": "1", "MALLOC_TRIM_THRESHOLD_": "65536"}
+
+
+@dataclass
+class SweepSummary:
+    """What a sweep run did."""
+
+    total: int
+    already_done: int
+    computed: int
+    failed: int
+    seconds: float
+    out_dir: Path
+    records: list
+
+
+def case_payload(case: Case, store: DatasetStore, cases_dir: Path, run_id: str) -> dict:
+    return {"scenario": to_dict(case.scenario), "instrument": to_dict(case.instrument), "hash": case.hash,
+            "labels": case.labels, "seed": case.seed, "store": str(store.root), "cases_dir": str(cases_dir),
+            "run_id": run_id}
+
+
+def read_record(path: Path) -> dict | None:
+    """A case record, or None if it cannot be read (then the case is computed again)."""
+    try:
+        record = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError):
+        return None
+    return record if isinstance(record, dict) and record.get("status") == "ok" else None
+
+
+def finished_records(cases_dir: Path, hashes) -> dict[str, dict]:
+    """Records of the finished cases among ``hashes``."""
+    out = {}
+    for h in hashes:
+        record = read_record(cases_dir / f"{h}.json")
+        if record is not None:
+            out[h] = record
+    return out
+
+
+def start_client(scheduler: str | None, workers: int):
+    """A ``distributed.Client``: on ``scheduler`` (an address) or on a new LocalCluster of ``workers`` processes."""
+    import dask
+    from distributed import Client, LocalCluster
+
+    if scheduler:
+        try:
+            return Client(scheduler, timeout="20s"), None
+        except (OSError, TimeoutError) as err:
+            raise ConnectionError(f"--scheduler {scheduler}: no Dask scheduler answers there ({err})") from None
+    environ = dict(dask.config.get("distributed.nanny.pre-spawn-environ", {}))
+    environ.update(WORKER_ENV)
+    with dask.config.set({"distributed.nanny.pre-spawn-environ": environ,
+                          "distributed.worker.daemon": False}):
+        cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None,
+                               silence_logs=logging.ERROR)
+    return Client(cluster), cluster
+
+
+def run_sweep(study: Study, out_dir: str | Path, *, store: DatasetStore | None = None, scheduler: str | None = None,
+              workers: int = 2, progress: bool = True, client=None) -> SweepSummary:
+    """Run every case of ``study`` not yet recorded in ``out_dir/cases`` and return the summary.
+
+    ``client``: an existing ``distributed.Client`` to use (then ``scheduler``/``workers`` are ignored).
+    """
+    from distributed import as_completed
+    from tqdm import tqdm
+
+    out_dir = Path(out_dir)
+    cases_dir = out_dir / "cases"
+    cases_dir.mkdir(parents=True, exist_ok=True)
+    store = store or DatasetStore()
+    store.root.mkdir(parents=True, exist_ok=True)
+    store.clear_partials()
+    cases = study.expand()
+    hashes = [c.hash for c in cases]
+    if len(set(hashes)) != len(hashes):
+        raise ValueError(f"{study.source}: two cases of the study are identical (same scenario and instrument); "
+                         "check the axes and seeds")
+    done = finished_records(cases_dir, hashes)
+    todo = [c for c in cases if c.hash not in done]
+    run_id = uuid.uuid4().hex[:12]
+    start = time.perf_counter()
+    records, failed = list(done.values()), 0
+    if progress:
+        print(f"{study.name}: {len(cases)} cases, {len(done)} already done, {len(todo)} to run", flush=True)
+    if todo:
+        own = client is None
+        cluster = None
+        if own:
+            client, cluster = start_client(scheduler, workers)
+        try:
+            futures = [client.submit(_run_payload, case_payload(c, store, cases_dir, run_id), key=f"case-{c.hash}-{run_id}",
+                                     pure=False, retries=0) for c in todo]
+            bar = tqdm(total=len(todo), desc=f"sweep {study.name}", unit="case", disable=not progress)
+            for future in as_completed(futures):
+                try:
+                    record = future.result()
+                except Exception as err:  # noqa: BLE001 - a worker lost mid-case: that case is simply not done
+                    record = {"status": "failed", "error": f"{type(err).__name__}: {err}"}
+                if record.get("status") == "ok":
+                    records.append(record)
+                else:
+                    failed += 1
+                    if progress:
+                        tqdm.write(f"case {record.get('labels')} failed: {record.get('error')}")
+                bar.update(1)
+            bar.close()
+        finally:
+            if own:
+                client.close()
+                if cluster is not None:
+                    cluster.close()
+    summary = SweepSummary(len(cases), len(done), len(todo) - failed, failed, time.perf_counter() - start, out_dir,
+                           records)
+    atomic_write_text(out_dir / "sweep-log.json", json.dumps(
+        {"study": study.name, "source": study.source, "cases": len(cases), "already_done": len(done),
+         "computed": summary.computed, "failed": failed, "seconds": round(summary.seconds, 2), "run_id": run_id,
+         "scheduler": scheduler or f"LocalCluster({workers} process workers)",
+         "store": str(store.root)}, indent=1))
+    return summary
+
+
+def _run_payload(payload: dict) -> dict:
+    from workbench.cases import run_case_record
+    return run_case_record(payload)
+
+
+def run_serial(study: Study, out_dir: str | Path, *, store: DatasetStore | None = None) -> SweepSummary:
+    """The same as :func:`run_sweep` in this process, without Dask (for debugging a single case)."""
+    from workbench.cases import run_case_record
+
+    out_dir = Path(out_dir)
+    cases_dir = out_dir / "cases"
+    cases_dir.mkdir(parents=True, exist_ok=True)
+    store = store or DatasetStore()
+    cases = study.expand()
+    done = finished_records(cases_dir, [c.hash for c in cases])
+    start = time.perf_counter()
+    records, failed = list(done.values()), 0
+    for case in cases:
+        if case.hash in done:
+            continue
+        record = run_case_record(case_payload(case, store, cases_dir, "serial"))
+        if record["status"] == "ok":
+            records.append(record)
+        else:
+            failed += 1
+    return SweepSummary(len(cases), len(done), len(cases) - len(done) - failed, failed, time.perf_counter() - start,
+                        out_dir, records)
+
+
+def environment_versions() -> dict:
+    """Versions recorded with every study result."""
+    import platform
+
+    import numpy
+
+    versions = {"python": platform.python_version(), "numpy": numpy.__version__, "machine": platform.machine(),
+                "cpus": os.cpu_count()}
+    for name in ("dask", "distributed", "xarray", "scipy", "numba", "mitsuba", "drjit"):
+        try:
+            module = __import__(name)
+            versions[name] = getattr(module, "__version__", "?")
+        except ImportError:
+            versions[name] = None
+    try:
+        from importlib.metadata import version
+        versions["workbench"] = version("scheimpflug-dic-workbench")
+    except Exception:  # noqa: BLE001 - not installed as a package
+        versions["workbench"] = None
+    return versions
