@@ -6,6 +6,8 @@
   ``DRJIT_LIBLLVM_PATH`` at LLVM >= 19 before drjit is imported, and stop with a clear message when none
   exists. ``scripts/bootstrap.sh`` installs Debian's ``libllvm19``.
 * ``WORKBENCH_VARIANT`` overrides the choice (e.g. ``llvm_ad_mono`` on a GPU machine).
+* ``WORKBENCH_RENDER_THREADS`` caps Dr.Jit's CPU thread pool (a study's process workers use one each, so
+  two workers on two cores do not fight over four threads).
 
 Import ``mi``/``dr`` from here, never ``mitsuba`` directly: the variant must be set before any module that
 subclasses Mitsuba types is imported.
@@ -104,6 +106,9 @@ def _start():
     import mitsuba as _mi
 
     _mi.set_variant(variant)
+    threads = os.environ.get("WORKBENCH_RENDER_THREADS", "")
+    if threads.isdigit() and int(threads) > 0:
+        _dr.set_thread_count(int(threads))
     return _mi, _dr, variant
 
 

@@ -123,8 +123,13 @@ class StageErrors:
     axis_tilt_deg: float = 0.0
     tilt_axis_world: tuple[float, float, float] = (0.0, 0.0, 1.0)
     seed: int = 0
+    rotation_urad_per_mm: tuple[float, float, float] = (0.0, 0.0, 0.0)
 
     def __post_init__(self):
+        rot = np.asarray(self.rotation_urad_per_mm, dtype=float).reshape(-1)
+        if rot.shape != (3,) or not np.all(np.isfinite(rot)):
+            raise ValueError(f"rotation_urad_per_mm must be a finite 3-vector, got {self.rotation_urad_per_mm!r}")
+        object.__setattr__(self, "rotation_urad_per_mm", tuple(float(x) for x in rot))
         scalars = {"scale_error": self.scale_error, "straightness_um": self.straightness_um,
                    "straightness_random_um": self.straightness_random_um, "travel_mm": self.travel_mm,
                    "axis_tilt_deg": self.axis_tilt_deg}
@@ -148,7 +153,13 @@ class StageErrors:
     def is_zero(self) -> bool:
         """True when every error is zero: the stage moves exactly as reported."""
         return (self.scale_error == 0 and self.straightness_um == 0 and self.straightness_random_um == 0
-                and self.axis_tilt_deg == 0)
+                and self.axis_tilt_deg == 0 and not any(self.rotation_urad_per_mm))
+
+    def rotation(self, s_mm: float) -> np.ndarray:
+        """(3, 3) rotation of the carriage at reported position ``s_mm`` (world frame)."""
+        from scipy.spatial.transform import Rotation
+
+        return Rotation.from_rotvec(1e-6 * float(s_mm) * np.asarray(self.rotation_urad_per_mm)).as_matrix()
 
     def true_axis(self, direction_world=STAGE_UP_WORLD) -> np.ndarray:
         """Unit vector (3,) of the true stage axis, world frame: the nominal axis tilted by ``axis_tilt_deg``.
@@ -243,7 +254,12 @@ def stage_poses(R_world_from_specimen, t_world_from_specimen_mm, states_mm,
     """
     R = np.asarray(R_world_from_specimen, dtype=float)
     t = np.asarray(t_world_from_specimen_mm, dtype=float).reshape(3)
-    return [(R.copy(), t + d) for d in true_stage_displacements_mm(states_mm, direction_world, errors)]
+    shifts = true_stage_displacements_mm(states_mm, direction_world, errors)
+    if errors is None or not any(errors.rotation_urad_per_mm):
+        return [(R.copy(), t + d) for d in shifts]
+    # the carriage turns the specimen about its own state-0 origin, which the translation carries along
+    s = np.asarray(states_mm, dtype=float).reshape(-1)
+    return [(errors.rotation(sk) @ R, t + d) for sk, d in zip(s, shifts)]
 
 
 def stage_fields(R_world_from_specimen, states_mm, direction_world=STAGE_UP_WORLD,
@@ -258,8 +274,12 @@ def stage_fields(R_world_from_specimen, states_mm, direction_world=STAGE_UP_WORL
     from scenes.fields import RigidMotionField
 
     R = np.asarray(R_world_from_specimen, dtype=float)
-    return [RigidMotionField(np.eye(3), R.T @ d)
-            for d in true_stage_displacements_mm(states_mm, direction_world, errors)]
+    shifts = true_stage_displacements_mm(states_mm, direction_world, errors)
+    if errors is None or not any(errors.rotation_urad_per_mm):
+        return [RigidMotionField(np.eye(3), R.T @ d) for d in shifts]
+    # world X' = Rc (R X + t0 - t0) + t0 + d  =>  specimen frame: X' = (R^T Rc R) X + R^T d
+    s = np.asarray(states_mm, dtype=float).reshape(-1)
+    return [RigidMotionField(R.T @ errors.rotation(sk) @ R, R.T @ d) for sk, d in zip(s, shifts)]
 
 
 # ------------------------------------------------------------------------------------------------------------

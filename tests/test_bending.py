@@ -2,6 +2,7 @@
 whole experiment end to end at reduced scale (scheimpflug rig, thin lens, true calibration)."""
 import json
 import shutil
+from pathlib import Path
 
 import cv2
 import numpy as np
@@ -120,19 +121,23 @@ def test_bending_writes_whole_report_figures_and_per_point_files(experiment):
     strain_rows = (out / "points" / "strain_02.csv").read_text().splitlines()
     assert strain_rows[0].startswith("row,col,x,y,E11")
     assert not list(out.rglob("*.tmp"))
-    truth = load_bending_truth(out / "images")
+    truth = load_bending_truth(Path(m["images"]))
     np.testing.assert_array_equal(truth.loads_N, LOADS)
 
 
 def test_a_state_that_cannot_be_matched_is_named_and_skipped(experiment, tmp_path, capsys):
     """A blank deformed image: that state is reported with its file name and skipped; the others are measured."""
-    out, _ = experiment
-    shutil.copytree(out / "images", tmp_path / "images")
-    name = load_bending_truth(tmp_path / "images").files[1]["left"]
-    blank = np.full_like(cv2.imread(str(tmp_path / "images" / name), cv2.IMREAD_GRAYSCALE), 128)
-    cv2.imwrite(str(tmp_path / "images" / name), blank)
+    out, first = experiment
+    # a copy of the store's dataset with one image blanked (a store trusts a complete dataset: it is not re-read)
+    images = Path(first["images"])
+    store = tmp_path / "store"
+    shutil.copytree(images, store / images.name)
+    name = load_bending_truth(images).files[1]["left"]
+    blank = np.full_like(cv2.imread(str(images / name), cv2.IMREAD_GRAYSCALE), 128)
+    cv2.imwrite(str(store / images.name / name), blank)
     m = reproduce_bending(tmp_path, scale=SCALE, calib="true", spp=16, subset_size=21, step=3, window=11,
-                          loads_N=LOADS, progress=False)
+                          loads_N=LOADS, progress=False, store=store)
+    assert m["images"] == str(store / images.name)
     first, second = m["states"]
     assert "error" in first and name in first["error"]
     assert "error" not in second and second["points"] == m["points"]

@@ -50,6 +50,15 @@ def test_content_hash_is_stable_across_processes_and_changes_with_any_value():
     assert content_hash(with_value(scenario, "render.read_noise_grey", 1.0 + 1e-9)) != content_hash(scenario)
 
 
+def test_defaults_are_left_out_of_the_hash_so_a_new_parameter_off_by_default_keeps_old_hashes():
+    from workbench.config import canonical_json
+
+    text = canonical_json(Scenario())
+    assert json.loads(text) == {"type": "Scenario", "schema": 1}
+    changed = json.loads(canonical_json(with_value(Scenario(), "rig.focus_offset_mm", 2.0)))
+    assert changed["rig"] == {"focus_offset_mm": 2.0}
+
+
 def test_dataset_parts_hash_only_the_sections_that_change_their_images():
     base = Scenario(experiment="rigid_motion")
     stage = with_value(base, "motion.stage_scale_error", 1e-3)
@@ -160,3 +169,16 @@ def test_cases_mode_study_sets_listed_parameters():
     scaled = cases[2]
     assert (scaled.scenario.target.print_scale_error, scaled.instrument.subset_px) == (0.005, 41)
     assert cases[0].scenario.target.print_scale_error == 0.0
+
+
+def test_a_case_the_experiment_cannot_render_is_refused_before_any_work(tmp_path):
+    path = tmp_path / "rm.toml"
+    path.write_text("[study]\nmode = 'cases'\n[scenario]\nexperiment = 'rigid_motion'\n"
+                    "[[case]]\nname = 'deep'\nset = { 'scenario.render.bit_depth' = 16 }\n")
+    with pytest.raises(ConfigError, match=r"rm\.toml: case case = deep: scenario\.render\.bit_depth = 16: the "
+                                          r"rigid-motion renders are 8-bit images"):
+        load_study(path)
+    path.write_text("[study]\nmode = 'cases'\n[scenario]\nexperiment = 'rigid_motion'\n"
+                    "[[case]]\nname = 'odd'\nset = { 'scenario.motion.step_mm' = 3.0 }\n")
+    with pytest.raises(ConfigError, match=r"max_mm = 10.0 must be a whole number of steps of 3.0 mm"):
+        load_study(path)

@@ -1,5 +1,6 @@
 """The rigid-motion reproduction at the CI scale: 0 -> 1 -> 0 mm, true rig and a calibration file."""
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -42,9 +43,11 @@ def test_calibration_file_reuses_the_renders(run, tmp_path):
     rig = paper_rig(0.25)
     export_opencv_yaml(CalibratedRig("rmm", rig.left, rig.right, rig.R_right_from_left, rig.T_right_from_left_mm),
                        tmp_path / "rig.yaml")
-    stamps = {f.name: f.stat().st_mtime_ns for f in (out / "images").glob("*.png")}
+    images = Path(m_true["images"])
+    stamps = {f.name: f.stat().st_mtime_ns for f in images.glob("*.png")}
     m = reproduce_rigid_motion(out, calib=str(tmp_path / "rig.yaml"), **KW)
-    assert stamps == {f.name: f.stat().st_mtime_ns for f in (out / "images").glob("*.png")}   # renders reused
+    assert m["images"] == m_true["images"]
+    assert stamps == {f.name: f.stat().st_mtime_ns for f in images.glob("*.png")}   # renders reused
     assert m["states"][0]["mean_error_um"] == pytest.approx(m_true["states"][0]["mean_error_um"], abs=1e-6)
     with pytest.raises(ValueError, match="calibration file not found"):
         reproduce_rigid_motion(out, calib=str(tmp_path / "missing.json"), **KW)

@@ -320,3 +320,32 @@ def test_invalid_illumination_arguments_raise_naming_the_parameter():
     for args, kwargs, match in cases:
         with pytest.raises(ValueError, match=match):
             change.apply(*args, **kwargs)
+
+
+def test_stage_rotation_turns_the_specimen_about_its_moving_centre_by_the_rate_times_travel():
+    """A roll of 40 µrad/mm about world z: at 10 mm the pose is turned by 400 µrad (1e-12) about the face centre,
+    which moves by the nominal displacement; stage_fields give the same material positions (1e-9 mm)."""
+    from scipy.spatial.transform import Rotation
+
+    from scenes.fields import RigidMotionField  # noqa: F401 - the fields' own type
+    from scenes.motion import StageErrors, stage_fields, stage_poses
+
+    errors = StageErrors(rotation_urad_per_mm=(0.0, 0.0, 40.0))
+    R0 = Rotation.from_rotvec([0.1, -0.2, 0.3]).as_matrix()
+    t0 = np.array([1.0, 2.0, 380.0])
+    states = np.array([0.0, 5.0, 10.0])
+    poses = stage_poses(R0, t0, states, errors=errors)
+    turn = Rotation.from_matrix(poses[2][0] @ R0.T).as_rotvec()
+    np.testing.assert_allclose(turn, [0.0, 0.0, 400e-6], atol=1e-12)
+    np.testing.assert_allclose(poses[2][1], t0 + np.array([0.0, -10.0, 0.0]), atol=1e-12)
+    X_spec = np.array([[40.0, 0.0, 0.0], [-40.0, 10.0, 0.0], [0.0, 0.0, 0.0]])
+    for (R, t), field in zip(poses, stage_fields(R0, states, errors=errors)):
+        moved_spec = X_spec + field.displacement_mm(X_spec)
+        np.testing.assert_allclose(moved_spec @ R0.T + t0, X_spec @ R.T + t, atol=1e-9)
+    # a point 40 mm along the beam (world x) moves vertically by 40 mm x 400 µrad = 16 µm more or less
+    (R, t), = stage_poses(R0, t0, [10.0], errors=errors)
+    lever = R0 @ X_spec[0]
+    assert abs(np.linalg.norm((R @ X_spec[0] + t) - (R0 @ X_spec[0] + t0)) - 10.0) == pytest.approx(
+        abs(np.cross([0, 0, 400e-6], lever)[1]), rel=1e-3)
+    with pytest.raises(ValueError, match="rotation_urad_per_mm must be a finite 3-vector"):
+        StageErrors(rotation_urad_per_mm=(0.0, float("nan"), 0.0))

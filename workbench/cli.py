@@ -16,6 +16,7 @@
     workbench sweep STUDY.toml [--scheduler tcp://HOST:8786] [--workers N] [--store DIR] --out DIR
     workbench budget STUDY.toml --metric NAME [--at DIM=VALUE] [--scheduler ...] [--workers N] --out DIR
     workbench parameters            (every scenario.* and instrument.* parameter a study may set)
+    workbench reproduce fig6-causes [--study studies/fig6_causes.toml] [--workers N] --out DIR
 
 Every option is checked when it is parsed (numbers finite and in range, sizes odd, ...) and every input file
 before the first long computation; errors are one line naming the option or file, exit code 2. Files are
@@ -313,6 +314,9 @@ def _parser() -> argparse.ArgumentParser:
     rc.add_argument("--calibration-views", type=_views, default=30)
     rc.add_argument("--validation-views", type=_views, default=20)
     rc.add_argument("--refine-corners", action="store_true", help="saddle-fit refinement of OpenCV's corners")
+    rc.add_argument("--store", type=Path, default=None,
+                    help="dataset store: renders kept by content hash and reused (default $WORKBENCH_STORE or "
+                         "~/.cache/scheimpflug-dic-workbench/datasets)")
     rc.add_argument("--out", type=Path, required=True)
     rm = repsub.add_parser("rigid-motion", help="the paper's rigid-motion test (Fig 6) on rendered states, scored")
     rm.add_argument("--scale", type=_scale, default=1.0)
@@ -324,6 +328,9 @@ def _parser() -> argparse.ArgumentParser:
     rm.add_argument("--spp", type=_positive_int, default=64)
     rm.add_argument("--subset", type=_subset, default=65)
     rm.add_argument("--step", type=_positive_int, default=5)
+    rm.add_argument("--store", type=Path, default=None,
+                    help="dataset store: renders kept by content hash and reused (default $WORKBENCH_STORE or "
+                         "~/.cache/scheimpflug-dic-workbench/datasets)")
     rm.add_argument("--out", type=Path, required=True)
     bd = repsub.add_parser("bending", help="the paper's three-point bending test (Figs 7-8): FE truth, strain, scored")
     bd.add_argument("--scale", type=_scale, default=1.0)
@@ -339,7 +346,19 @@ def _parser() -> argparse.ArgumentParser:
     bd.add_argument("--step", type=_positive_int, default=5)
     bd.add_argument("--window", type=_integer, default=15,
                     help="strain window (points per side, odd >= 3); 0 = per-triangle Cosserat strain, no window")
+    bd.add_argument("--store", type=Path, default=None,
+                    help="dataset store: renders kept by content hash and reused (default $WORKBENCH_STORE or "
+                         "~/.cache/scheimpflug-dic-workbench/datasets)")
     bd.add_argument("--out", type=Path, required=True)
+    f6 = repsub.add_parser("fig6-causes", help="which simulated error sources explain the paper's Fig 6 error growth "
+                                                "(a study on Dask, resumable)")
+    f6.add_argument("--study", type=Path, default=None, help="study file (default studies/fig6_causes.toml)")
+    f6.add_argument("--scheduler", default=None, help="address of a running Dask scheduler; default a LocalCluster")
+    f6.add_argument("--workers", type=_positive_int, default=2, help="LocalCluster process workers, default 2")
+    f6.add_argument("--store", type=Path, default=None,
+                    help="dataset store (renders by scenario hash); default $WORKBENCH_STORE or ~/.cache/...")
+    f6.add_argument("--quiet", action="store_true", help="no progress bar")
+    f6.add_argument("--out", type=Path, required=True)
     da = repsub.add_parser("dic-accuracy", help="DIC bias vs sub-pixel shift, noise floor, shape functions")
     da.add_argument("--out", type=Path, required=True)
     dof = repsub.add_parser("depth-of-field", help="MIG of an oblique speckled plate: Scheimpflug vs untilted")
@@ -448,7 +467,7 @@ def _reproduce_rigid_motion(args) -> int:
     _rig_option(args.calib)
     _output_folder(args.out)
     m = reproduce_rigid_motion(args.out, scale=args.scale, calib=args.calib, lens=args.lens, seed=args.seed,
-                               spp=args.spp, subset_size=args.subset, step=args.step)
+                               spp=args.spp, subset_size=args.subset, step=args.step, store=args.store)
     e = m["reference_3d_error_um"]
     print(f"{m['calibration']}: reference 3D error {e['aligned_rms']:.3f} um aligned ({e['unaligned_rms']:.1f} um "
           f"unaligned), {m['points']} points")
@@ -472,7 +491,7 @@ def _reproduce_bending(args) -> int:
     _output_folder(args.out)
     m = reproduce_bending(args.out, scale=args.scale, rig_name=args.rig, lens=args.lens, calib=args.calib,
                           seed=args.seed, spp=args.spp, noise_grey=args.noise_grey, subset_size=args.subset,
-                          step=args.step, window=args.window or None)
+                          step=args.step, window=args.window or None, store=args.store)
     print(f"{m['calibration']}: {m['points']} points, VSG {m['vsg_px']} px")
     for r in m["states"]:
         if "error" in r:
@@ -690,7 +709,7 @@ def _calibrate(args) -> int:
     cal, pairs = calibrate_from_files(left, right, square_mm=args.square_mm, pattern_size=args.pattern,
                                       model=args.model, tilt_guess_left_deg=args.tilt_guess_deg,
                                       tilt_guess_right_deg=guess_r, joint=not args.no_joint,
-                                      refine_corners=args.refine_corners)
+                                      refine_corners=args.refine_corners, store=args.store)
     json_text, yaml_text = _calibration_texts(cal, pairs)
     write_texts_together({args.out: json_text, yaml_out: yaml_text})       # both files or neither
     print(f"calibrated {args.model} from {len(pairs.left_files)} stereo views ({len(pairs.dropped)} images dropped)")
@@ -709,7 +728,7 @@ def _reproduce_calibration(args) -> int:
     _output_folder(args.out)
     m = reproduce_calibration(args.out, scale=args.scale, seed=args.seed, spp=args.spp, noise_grey=args.noise_grey,
                               n_calibration=args.calibration_views, n_validation=args.validation_views,
-                              refine_corners=args.refine_corners)
+                              refine_corners=args.refine_corners, store=args.store)
     for model, r in m["models"].items():
         v, pf = r["validation_exact"], r["validation_plane_fit"]
         print(f"{model:8s}: reprojection RMS {r['reprojection_rms_px']['left']:.4f} / "
@@ -765,6 +784,11 @@ def _reproduce_depth_of_field(args) -> int:
 def _sweep(args) -> int:
     from workbench.sweep_cli import sweep_command
     return sweep_command(args)
+
+
+def _fig6_causes(args) -> int:
+    from workbench.sweep_cli import fig6_causes_command
+    return fig6_causes_command(args)
 
 
 def _budget(args) -> int:
@@ -825,6 +849,7 @@ def main(argv: list[str] | None = None) -> int:
                 ("reproduce", "rigid-motion"): _reproduce_rigid_motion,
                 ("reproduce", "bending"): _reproduce_bending,
                 ("sweep", None): _sweep,
+                ("reproduce", "fig6-causes"): _fig6_causes,
                 ("budget", None): _budget,
                 ("parameters", None): _parameters}
     where = " ".join(filter(None, ("workbench", args.command, getattr(args, "what", None))))

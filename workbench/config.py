@@ -135,24 +135,62 @@ def from_dict(cls, data, where: str = ""):
         raise ConfigError(f"{where or cls.__name__}: {err}") from None
 
 
-def to_dict(config) -> dict:
-    """Plain mapping of a config (tuples as lists, ``None`` fields left out: TOML has no null)."""
+#: Bump when a default value changes meaning (hashes leave defaults out, see :func:`canonical_json`).
+SCHEMA_VERSION = 1
+
+
+def _default_of(f: dataclasses.Field):
+    if f.default is not dataclasses.MISSING:
+        return f.default
+    if f.default_factory is not dataclasses.MISSING:
+        return f.default_factory()
+    return dataclasses.MISSING
+
+
+def to_dict(config, skip_defaults: bool = False) -> dict:
+    """Plain mapping of a config (tuples as lists, ``None`` fields left out: TOML has no null).
+
+    ``skip_defaults``: also leave out every value equal to its field's default (nested tables that are all
+    default vanish).
+    """
     out = {}
     for f in dataclasses.fields(config):
         value = getattr(config, f.name)
         if value is None:
             continue
+        if skip_defaults and value == _default_of(f):
+            continue
         if dataclasses.is_dataclass(value):
-            value = to_dict(value)
+            value = to_dict(value, skip_defaults)
+            if skip_defaults and not value:
+                continue
         elif isinstance(value, tuple):
             value = list(value)
         out[f.name] = value
     return out
 
 
+def _floats(value):
+    """Integers given for floats hash as floats: every number is written as a float."""
+    if isinstance(value, bool) or value is None or isinstance(value, str):
+        return value
+    if isinstance(value, (int, float)):
+        return float(value)
+    if isinstance(value, dict):
+        return {k: _floats(v) for k, v in value.items()}
+    if isinstance(value, list):
+        return [_floats(v) for v in value]
+    return value
+
+
 def canonical_json(config) -> str:
-    """Sorted-key, compact JSON of a config: the text its hash is taken of."""
-    return json.dumps({"type": type(config).__name__, **to_dict(config)}, sort_keys=True, separators=(",", ":"),
+    """Sorted-key, compact JSON of a config's non-default values: the text its hash is taken of.
+
+    Leaving defaults out keeps every earlier hash (and stored dataset) valid when a new parameter is added off
+    by default; a change of what a default means bumps :data:`SCHEMA_VERSION` instead.
+    """
+    return json.dumps({"type": type(config).__name__, "schema": SCHEMA_VERSION,
+                       **_floats(to_dict(config, skip_defaults=True))}, sort_keys=True, separators=(",", ":"),
                       allow_nan=False)
 
 

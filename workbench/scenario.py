@@ -19,7 +19,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-from workbench.config import content_hash, hash_of, to_dict
+from workbench.config import SCHEMA_VERSION, content_hash, hash_of, to_dict
 
 EXPERIMENTS = ("dic2d", "rigid_motion")
 
@@ -35,12 +35,15 @@ class RigConfig:
 
     name: str = _f("paper", "true rig: 'paper' (Table 1) or 'scheimpflug' (tilts solved for the face)",
                    choices=("paper", "scheimpflug"))
-    scale: float = _f(0.25, "image resolution relative to the paper's 2448 x 2048 px (focal lengths scale too)",
+    scale: float = _f(0.25, "image resolution relative to the paper's 2456 x 2058 px (focal lengths scale too)",
                       min=0.05, max=1.0)
     lens: str = _f("pinhole", "'pinhole' or 'thin' (defocus: a thin lens focused on the face centre)",
                    choices=("pinhole", "thin"))
     f_number: float = _f(8.0, "thin-lens f-number (defocus grows as 1/N); f/2.8-f/16 in DIC practice",
                          min=0.5, max=64.0)
+    focus_offset_mm: float = _f(0.0, "thin lens focused this far beyond the face centre along the line of sight "
+                                     "(a focusing error; the depth of field at f/8 and 376 mm is a few mm)",
+                                min=-200.0, max=1000.0)
 
 
 @dataclass(frozen=True)
@@ -108,6 +111,10 @@ class MotionConfig:
     stage_straightness_um: float = _f(0.0, "peak lateral deviation over the travel (µm); 1-10 µm over "
                                            "25-100 mm (data sheets)", min=0.0, max=1000.0)
     stage_axis_tilt_deg: float = _f(0.0, "true stage axis tilted from the nominal (deg)", min=-10.0, max=10.0)
+    stage_rotation_urad_per_mm: tuple[float, float, float] = _f(
+        (0.0, 0.0, 0.0), "carriage pitch/yaw/roll: rotation vector per mm of travel, world (= left camera) frame, "
+                         "µrad/mm, about the face centre; ball-bearing stages 1-5 µrad/mm (data sheets)",
+        min=-1e4, max=1e4)
 
 
 @dataclass(frozen=True)
@@ -198,10 +205,11 @@ DATASET_SECTIONS = {
 
 def dataset_parts(scenario: Scenario) -> dict[str, tuple[str, dict]]:
     """The datasets a scenario renders: ``{part: (hash, the content it is the hash of)}``."""
-    data = to_dict(scenario)
+    data = to_dict(scenario, skip_defaults=True)     # defaults left out: a new parameter keeps old hashes
     out = {}
     for part, sections in DATASET_SECTIONS[scenario.experiment].items():
-        content = {"experiment": scenario.experiment, "part": part, **{s: data.get(s) for s in sections}}
+        content = {"experiment": scenario.experiment, "part": part, "schema": SCHEMA_VERSION,
+                   **{s: data[s] for s in sections if s in data}}
         out[part] = (hash_of(content), content)
     return out
 

@@ -57,6 +57,16 @@ def _locked(path: Path):
             fcntl.flock(handle, fcntl.LOCK_UN)
 
 
+def stored_render(kind: str, content: dict, render: Callable[[Path], object],
+                  store: "DatasetStore | str | Path | None" = None) -> tuple[Path, bool]:
+    """The dataset of ``kind`` made from ``content`` (any JSON-able description of everything that changes its
+    files), rendered by ``render(folder)`` unless the store holds it: the one render cache of every command."""
+    from workbench.config import hash_of
+
+    store = store if isinstance(store, DatasetStore) else DatasetStore(store)
+    return store.ensure(kind, hash_of(content), content, render)
+
+
 class DatasetStore:
     """Content-addressed datasets under ``root`` (see the module doc)."""
 

@@ -242,14 +242,29 @@ def load_study(path: str | Path) -> Study:
     """Read and check a study file (TOML or JSON); errors name the file and the key."""
     path = Path(path)
     data = read_mapping(path)
-    return parse_study(data, str(path), path.read_text(encoding="utf-8"))
+    study = parse_study(data, str(path), path.read_text(encoding="utf-8"))
+    check_cases(study)
+    return study
 
 
-def parameters_of(study: Study) -> list[str]:
-    """Every parameter a study may sweep (for ``--help`` style listings)."""
+def check_cases(study: Study) -> None:
+    """The experiment's own checks on every case (e.g. what it can render), before any work starts."""
+    from workbench.cases import experiment_module
+
+    module = experiment_module(study.scenario.experiment)
+    for case in study.expand():
+        try:
+            module.check(case.scenario, case.instrument)
+        except ValueError as err:
+            labels = ", ".join(f"{k} = {v}" for k, v in case.labels.items() if k != "repeat")
+            raise ConfigError(f"{study.source}: case {labels or 'base'}: {err}") from None
+
+
+def sweepable_parameters() -> list[str]:
+    """Every parameter a study may set (``workbench parameters`` prints them with their documentation)."""
     return ([f"scenario.{p}" for p in parameter_paths(Scenario)]
             + [f"instrument.{p}" for p in parameter_paths(Instrument)])
 
 
 __all__ = ["Axis", "Case", "CaseSpec", "Study", "apply_assignments", "get_value", "load_study", "parse_study",
-           "parameters_of"]
+           "sweepable_parameters"]

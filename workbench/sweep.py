@@ -27,7 +27,7 @@ from workbench.study import Case, Study
 
 #: Environment of LocalCluster workers: one thread per library, since each worker process is one case at a time.
 WORKER_ENV = {"OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1",
-              "NUMBA_NUM_THREADS": "1", "DRJIT_NUM_THREADS": "1", "MALLOC_TRIM_THRESHOLD_": "65536"}
+              "NUMBA_NUM_THREADS": "1", "WORKBENCH_RENDER_THREADS": "1", "MALLOC_TRIM_THRESHOLD_": "65536"}
 
 
 @dataclass

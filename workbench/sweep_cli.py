@@ -38,39 +38,65 @@ def _summary_lines(study, summary, scheduler, workers) -> list[str]:
             "results: results.nc (xarray / NetCDF), results.csv, cases/<hash>.json"]
 
 
-def sweep_command(args) -> int:
+def _run(args, study, copy_of=None):
+    """Prepare ``--out``, run the study's missing cases on Dask; returns ``(summary, summary lines, versions)``."""
     from workbench.store import DatasetStore
-    from workbench.study import load_study
-    from workbench.study_report import write_study_outputs
     from workbench.sweep import environment_versions, run_sweep
 
-    study = load_study(args.study)                   # every error before any work
-    _prepare_out(args.out, study)
+    _prepare_out(args.out, copy_of or study)
     _terminate_cleanly()
     summary = run_sweep(study, args.out, store=DatasetStore(args.store), scheduler=args.scheduler,
                         workers=args.workers, progress=not args.quiet)
-    lines = _summary_lines(study, summary, args.scheduler, args.workers)
-    paths = write_study_outputs(study, args.out, summary.records, lines, environment_versions())
+    return summary, _summary_lines(study, summary, args.scheduler, args.workers), environment_versions()
+
+
+def sweep_command(args) -> int:
+    from workbench.study import load_study
+    from workbench.study_report import write_study_outputs
+
+    study = load_study(args.study)                   # every error before any work
+    summary, lines, versions = _run(args, study)
+    paths = write_study_outputs(study, args.out, summary.records, lines, versions)
     print("\n".join(lines))
     print(f"report: {paths['html']}")
     return 1 if summary.failed else 0
 
 
+#: The study shipped with the repository that explains the paper's Fig 6.
+FIG6_STUDY = Path(__file__).resolve().parents[1] / "studies" / "fig6_causes.toml"
+
+
+def fig6_causes_command(args) -> int:
+    from workbench.experiments.fig6_causes import write_fig6_report
+    from workbench.study import load_study
+    from workbench.study_report import write_study_outputs
+
+    path = args.study or FIG6_STUDY
+    study = load_study(path)
+    if study.scenario.experiment != "rigid_motion" or study.mode != "cases" or \
+            "perfect world" not in [c.name for c in study.cases]:
+        raise ValueError(f"{path}: the Fig 6 study needs experiment = \"rigid_motion\", mode = \"cases\" and a "
+                         "case named \"perfect world\" (the baseline)")
+    summary, lines, versions = _run(args, study)
+    write_study_outputs(study, args.out, summary.records, lines, versions)
+    result = write_fig6_report(study, args.out, summary.records, versions)
+    print("\n".join(lines))
+    for v in result["single_causes"]:
+        print(f"  {v['case']}: {v['verdict']}")
+    print(f"best explanation: {', '.join(result['best'][:3])}")
+    print(f"report: {args.out / 'fig6_causes.md'}")
+    return 1 if summary.failed else 0
+
+
 def budget_command(args) -> int:
     from workbench.budget import budget_study, parse_at, write_budget
-    from workbench.store import DatasetStore
     from workbench.study import load_study
-    from workbench.sweep import environment_versions, run_sweep
 
     base = load_study(args.study)
     study = budget_study(base, args.metric)          # checks the [budget] table and the metric
     at = parse_at(args.at, base, args.metric)
-    _prepare_out(args.out, base)
-    _terminate_cleanly()
-    summary = run_sweep(study, args.out, store=DatasetStore(args.store), scheduler=args.scheduler,
-                        workers=args.workers, progress=not args.quiet)
-    lines = _summary_lines(study, summary, args.scheduler, args.workers)
-    result = write_budget(study, args.out, summary.records, args.metric, at, lines, environment_versions())
+    summary, lines, versions = _run(args, study, copy_of=base)
+    result = write_budget(study, args.out, summary.records, args.metric, at, lines, versions)
     print("\n".join(lines))
     for row in result["rows"]:
         print(f"  {row['case']:<32s} {row['mean']:+.4g} ± {row['std']:.2g}   contribution {row['contribution']:+.4g}")

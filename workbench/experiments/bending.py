@@ -29,7 +29,7 @@ from measurement.stereo_io import write_state_csv, write_state_vtk
 from measurement.strain import surface_strain, virtual_strain_gauge_px
 from workbench.experiments.bending_scenes import BENDING_LOADS_N, load_bending_truth, render_bending
 from workbench.experiments.rigid_motion import _face_roi, _finite_or_none, _rig_for_name
-from workbench.manifest import complete_manifest
+from workbench.store import stored_render
 from workbench.rigs import scheimpflug_design_report
 
 #: Default strain window (points per side of the least-squares fit): VSG = 14 * 5 + 65 = 135 px (~4.7 mm).
@@ -43,22 +43,6 @@ def _grid(values: np.ndarray, grid) -> np.ndarray:
     out = np.full(grid.shape + values.shape[1:], np.nan)
     out[grid.active] = values
     return out
-
-
-def _reusable_truth(images: Path, *, scale, rig_name, lens, seed, spp, loads, noise_grey):
-    """The truth of a complete earlier render with these settings (its manifest, written last, lists files that
-    are all present), else None: a half-written folder is rendered again."""
-    if complete_manifest(images, "bending") is None or not (images / "truth.json").is_file():
-        return None
-    truth = load_bending_truth(images)
-    info = truth.info
-    same = (info.get("rig", {}).get("scale") == scale and info.get("rig", {}).get("name") == rig_name
-            and info.get("lens") == lens and info.get("render", {}).get("seed") == seed
-            and info.get("render", {}).get("spp") == spp
-            and info.get("render", {}).get("read_noise_grey") == noise_grey
-            and truth.loads_N.shape == np.shape(loads) and np.allclose(truth.loads_N, loads)
-            and all((images / name).is_file() for files in truth.files for name in files.values()))
-    return truth if same else None
 
 
 def _rms(a) -> float:
@@ -95,17 +79,22 @@ def _strain_invariants(E: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 def reproduce_bending(out_dir: str | Path, *, scale: float = 1.0, rig_name: str = "scheimpflug", lens: str = "thin",
                       calib: str = "rendered", seed: int = 0, spp: int = 64, noise_grey: float = 1.0,
                       subset_size: int = 65, step: int = 5, window: int | None = DEFAULT_STRAIN_WINDOW,
-                      loads_N=BENDING_LOADS_N, progress: bool = True) -> dict:
-    """Render (or reuse) the load states, measure them, compute strain, score against truth, write the report."""
+                      loads_N=BENDING_LOADS_N, progress: bool = True, store=None) -> dict:
+    """Render (or reuse) the load states, measure them, compute strain, score against truth, write the report.
+
+    The load states are rendered into the dataset store (``store``, default
+    :func:`workbench.store.default_store_dir`) under the hash of everything that makes them.
+    """
     out_dir = Path(out_dir)
     loads = np.asarray(loads_N, dtype=float)
-    images = out_dir / "images"
-    rig, rig_text = _rig_for_name(calib, rig_name, scale, out_dir, seed)   # a bad calibration file: before rendering
-    truth = _reusable_truth(images, scale=scale, rig_name=rig_name, lens=lens, seed=seed, spp=spp, loads=loads,
-                            noise_grey=noise_grey)
-    if truth is None:     # the experiment owns its image folder: an earlier or half-written render is replaced
-        truth = render_bending(rig_name, images, scale=scale, lens=lens, spp=spp, seed=seed, noise_grey=noise_grey,
-                               loads_N=loads, progress=progress, overwrite=True)
+    rig, rig_text = _rig_for_name(calib, rig_name, scale, out_dir, seed, store)   # a bad calibration file: first
+    content = {"experiment": "bending", "rig": rig_name, "scale": float(scale), "lens": lens, "seed": seed,
+               "spp": spp, "read_noise_grey": float(noise_grey), "loads_N": [float(v) for v in loads],
+               "fe": "ThreePointBending defaults/1"}
+    images, _ = stored_render("bending", content, lambda folder: render_bending(
+        rig_name, folder, scale=scale, lens=lens, spp=spp, seed=seed, noise_grey=noise_grey, loads_N=loads,
+        progress=progress, overwrite=True), store)
+    truth = load_bending_truth(images)
     settings = DICSettings(subset_size=subset_size, step=step, order=2)
     roi = _overlap_roi(truth, _face_roi(_FacePoses(truth), subset_size // 2), subset_size // 2, step)
     left_ref = read_grey(images / truth.files[0]["left"])
@@ -219,7 +208,7 @@ def reproduce_bending(out_dir: str | Path, *, scale: float = 1.0, rig_name: str 
                           "U": (_grid(removal.residual_mm, grid), _grid(U_true_def, grid)),
                           "strain": (strain.magnitude, filtered.magnitude, mag_exact_g),
                           "area": (strain.area_change, filtered.area_change, _grid(area_exact, grid))}
-    metrics = {"rig": rig_name, "calibration": rig_text, "lens": lens, "scale": scale, "spp": spp,
+    metrics = {"rig": rig_name, "calibration": rig_text, "images": str(images), "lens": lens, "scale": scale, "spp": spp,
                "noise_grey": noise_grey, "subset_px": subset_size, "step_px": step,
                "strain_window": window if window is not None else "per-triangle (Cosserat point elements)",
                "vsg_px": vsg, "roi_px": list(roi), "points": int(shape.x.size),

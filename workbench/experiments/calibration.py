@@ -31,7 +31,8 @@ from measurement.stereo import fit_plane, triangulate
 from scenes.noise import SensorNoise
 from scenes.targets import Checkerboard
 from workbench.experiments.checkerboard_views import board_outline_mm, write_checkerboard_dataset
-from workbench.manifest import complete_manifest, save_figure
+from workbench.manifest import save_figure
+from workbench.store import stored_render
 from workbench.poses import random_board_poses
 from workbench.rigs import StereoRig, get_rig, paper_values
 
@@ -87,29 +88,15 @@ def plane_fits_of_detected_boards(rig_cal: CalibratedRig, pairs: DetectedPairs) 
             "max_abs_um": float(1e3 * np.nanmax(np.abs(all_d))), "per_board_rmse_um": per_board, "example": example}
 
 
-def _reusable_truth(image_dir: Path, rig: StereoRig, n_views: int, seed: int, spp: int, noise: SensorNoise):
-    """The truth of an earlier render of exactly this dataset in ``image_dir`` (renders are deterministic), or None.
-
-    Only a complete dataset is reused (its manifest, written last, lists files that are all present).
-    """
-    path = image_dir / "truth.json"
-    if complete_manifest(image_dir, "checkerboard") is None or not path.is_file():
-        return None
-    truth = json.loads(path.read_text())
-    wanted = {"spp": spp, "seed": seed, "bit_depth": noise.bit_depth, "read_noise_grey": noise.read_noise_grey,
-              "electrons_per_grey": noise.electrons_per_grey}
-    same = (truth.get("render") == wanted and len(truth.get("images", [])) == 2 * n_views
-            and all(im["intrinsics"] == rig.camera(im["camera"]).to_dict() for im in truth["images"])
-            and all((image_dir / im["file"]).is_file() for im in truth["images"]))
-    return truth if same else None
-
-
 def reproduce_calibration(out_dir: Path, *, scale: float = 1.0, seed: int = 0, spp: int = 64, noise_grey: float = 1.0,
                           n_calibration: int = 30, n_validation: int = 20, models=("rmm", "pinhole"),
-                          progress: bool = True, refine_corners: bool = False, rig_name: str = "paper") -> dict:
-    """Render, calibrate, validate; writes images, calibration files, ``metrics.json`` and ``report.md``.
+                          progress: bool = True, refine_corners: bool = False, rig_name: str = "paper",
+                          store=None) -> dict:
+    """Render, calibrate, validate; writes calibration files, ``metrics.json`` and ``report.md``.
 
-    Images already rendered in ``out_dir/images`` with the same rig, views, seed, spp and noise are reused.
+    The board views are rendered into the dataset store (``store``: a :class:`workbench.store.DatasetStore` or
+    folder, default :func:`workbench.store.default_store_dir`) under the hash of everything that makes them, so
+    an identical run reuses them; ``metrics["images"]`` names the folder.
     ``rig_name``: the true rig (:func:`workbench.rigs.get_rig`); boards are rendered through its pinhole (the
     chief-ray geometry that a thin lens shares), its tilt guess from :data:`RIG_TILT_GUESS_DEG`.
     """
@@ -121,14 +108,16 @@ def reproduce_calibration(out_dir: Path, *, scale: float = 1.0, seed: int = 0, s
     poses = random_board_poses(rig, board_outline_mm(board), n_calibration + n_validation, seed)
     t0 = time.perf_counter()
     noise = SensorNoise(read_noise_grey=noise_grey, bit_depth=8)
-    truth = _reusable_truth(out_dir / "images", rig, n_calibration + n_validation, seed, spp, noise)
-    reused = truth is not None
-    if truth is None:
-        # the experiment owns its image folder: an earlier or half-written render there is replaced
-        truth = write_checkerboard_dataset(rig, out_dir / "images", n_calibration + n_validation, seed, spp=spp,
-                                           board=board, noise=noise, progress=progress, poses=poses, overwrite=True)
+    content = {"experiment": "calibration", "rig": rig_name, "scale": float(scale), "intrinsics": {
+                   s: rig.camera(s).to_dict() for s in ("left", "right")}, "views": n_calibration + n_validation,
+               "seed": seed, "spp": spp, "read_noise_grey": float(noise_grey), "bit_depth": 8,
+               "board": {"squares": list(board.squares), "square_mm": board.square_mm}, "poses": "random_board_poses/1"}
+    images, reused = stored_render("checkerboard", content, lambda folder: write_checkerboard_dataset(
+        rig, folder, n_calibration + n_validation, seed, spp=spp, board=board, noise=noise, progress=progress,
+        poses=poses, overwrite=True), store)
+    truth = json.loads((images / "truth.json").read_text())
     t_render = time.perf_counter() - t0
-    files = {side: [out_dir / "images" / im["file"] for im in truth["images"] if im["camera"] == side]
+    files = {side: [images / im["file"] for im in truth["images"] if im["camera"] == side]
              for side in ("left", "right")}
     cal_files = {s: f[:n_calibration] for s, f in files.items()}
     val_files = {s: f[n_calibration:] for s, f in files.items()}
@@ -136,7 +125,8 @@ def reproduce_calibration(out_dir: Path, *, scale: float = 1.0, seed: int = 0, s
                            if im["camera"] == "left" and im["view"] >= n_calibration])
     metrics = {"scale": scale, "image_size_px": [rig.left.width, rig.left.height], "seed": seed, "spp": spp,
                "noise_grey": noise_grey, "calibration_views": n_calibration, "validation_views": n_validation,
-               "render_s": "reused" if reused else round(t_render, 1), "datasheet_tilt_deg": tilt_guess, "rig": rig_name,
+               "render_s": "reused" if reused else round(t_render, 1), "images": str(images),
+               "datasheet_tilt_deg": tilt_guess, "rig": rig_name,
                "truth": {s: rig.camera(s).intrinsics() for s in ("left", "right")}, "models": {}}
     # Detect once; every model calibrates from the same corners (detection at 5 MP takes ~3 s per image).
     t0 = time.perf_counter()

@@ -193,6 +193,13 @@ def measure(scenario: Scenario, instrument: Instrument, folder: Path) -> dict:
             "independent_points": int(sel.sum())}
 
 
+def check(scenario: Scenario, instrument: Instrument | None = None) -> None:
+    """Refuse what this experiment cannot do (called for every case before a study starts)."""
+    if instrument is not None and scenario.image2d.size_px - 2 * (instrument.subset_px // 2 + 8) < 1:
+        raise ValueError(f"scenario.image2d.size_px = {scenario.image2d.size_px} is too small for "
+                         f"instrument.subset_px = {instrument.subset_px}")
+
+
 def run(scenario: Scenario, instrument: Instrument, store) -> dict:
     """Study entry point: the stored pair (rendered once per scenario content), measured and scored."""
     from workbench.scenario import dataset_parts

@@ -26,7 +26,8 @@ from measurement.stereo_dic import StereoMatchError, measure_state, reference_sh
 from measurement.stereo_io import write_state_csv, write_state_vtk
 from scenes.motion import stage_states_mm
 from workbench.experiments.rigid_motion_scenes import load_truth, render_rigid_motion
-from workbench.manifest import complete_manifest, save_figure
+from workbench.manifest import save_figure
+from workbench.store import stored_render
 from workbench.rigs import get_rig, paper_values
 
 
@@ -44,12 +45,13 @@ def _finite_or_none(value: float) -> float | None:
     return float(value) if np.isfinite(value) else None
 
 
-def _rig_for(calib: str, scale: float, out_dir: Path, seed: int) -> tuple[CalibratedRig, str]:
+def _rig_for(calib: str, scale: float, out_dir: Path, seed: int, store=None) -> tuple[CalibratedRig, str]:
     """The rig the instrument uses: 'true', 'rendered' (reproduced from rendered boards) or a file."""
-    return _rig_for_name(calib, "paper", scale, out_dir, seed)
+    return _rig_for_name(calib, "paper", scale, out_dir, seed, store)
 
 
-def _rig_for_name(calib: str, rig_name: str, scale: float, out_dir: Path, seed: int) -> tuple[CalibratedRig, str]:
+def _rig_for_name(calib: str, rig_name: str, scale: float, out_dir: Path, seed: int,
+                  store=None) -> tuple[CalibratedRig, str]:
     """The instrument's rig for the true rig ``rig_name``: 'true', 'rendered' (from rendered boards) or a file."""
     if calib == "true":
         rig = get_rig(rig_name, scale)
@@ -63,31 +65,13 @@ def _rig_for_name(calib: str, rig_name: str, scale: float, out_dir: Path, seed: 
         if not path.is_file() or stale:
             from workbench.experiments.calibration import reproduce_calibration
             reproduce_calibration(out_dir / "calibration", scale=scale, seed=seed, refine_corners=scale >= 0.75,
-                                  rig_name=rig_name)
+                                  rig_name=rig_name, store=store)
         return load_calibration(path), f"calibration reproduced from rendered boards ({path})"
     path = Path(calib)
     if not path.is_file():
         raise ValueError(f"calibration file not found: {calib} (use 'true', 'rendered' or a calibration file)")
     loaded = load_opencv_yaml(path) if path.suffix.lower() in (".yaml", ".yml") else load_calibration(path)
     return loaded, f"calibration file {path}"
-
-
-def _reusable_truth(images: Path, *, scale, lens, seed, spp, states):
-    """The truth of renders already in ``images`` if they were made with these settings (else None).
-
-    Only a complete dataset is reused: its manifest (written after every image and the truth) lists files that
-    are all present; a half-written folder is rendered again.
-    """
-    if complete_manifest(images, "rigid-motion") is None or not (images / "truth.json").is_file():
-        return None
-    truth = load_truth(images)
-    info = truth.info
-    wanted = stage_states_mm() if states is None else np.asarray(states, dtype=float)
-    same = (info.get("rig", {}).get("scale") == scale and info.get("lens") == lens
-            and info.get("render", {}).get("seed") == seed and info.get("render", {}).get("spp") == spp
-            and truth.states_mm.shape == wanted.shape and np.allclose(truth.states_mm, wanted)
-            and all((images / name).is_file() for files in truth.files for name in files.values()))
-    return truth if same else None
 
 
 def _face_roi(truth, half: int, margin_px: int = 4) -> tuple[int, int, int, int]:
@@ -182,15 +166,21 @@ def measure_rigid_motion(truth, images: Path, rig: CalibratedRig, *, subset_size
 
 def reproduce_rigid_motion(out_dir: str | Path, *, scale: float = 1.0, calib: str = "rendered", lens: str = "pinhole",
                            seed: int = 0, spp: int = 64, subset_size: int = 65, step: int = 5, states=None,
-                           progress: bool = True) -> dict:
-    """Render (or reuse) the states, measure them, score against truth, write the report. Returns the metrics."""
+                           progress: bool = True, store=None) -> dict:
+    """Render (or reuse) the states, measure them, score against truth, write the report. Returns the metrics.
+
+    The states are rendered into the dataset store (``store``, default :func:`workbench.store.default_store_dir`)
+    under the hash of everything that makes them: an identical run reuses them (``metrics["images"]``).
+    """
     out_dir = Path(out_dir)
-    images = out_dir / "images"
-    rig, rig_text = _rig_for(calib, scale, out_dir, seed)         # a bad calibration file is refused before rendering
-    truth = _reusable_truth(images, scale=scale, lens=lens, seed=seed, spp=spp, states=states)
-    if truth is None:     # the experiment owns its image folder: an earlier or half-written render is replaced
-        truth = render_rigid_motion("paper", images, scale=scale, lens=lens, spp=spp, seed=seed, states=states,
-                                    progress=progress, overwrite=True)
+    rig, rig_text = _rig_for(calib, scale, out_dir, seed, store)  # a bad calibration file is refused before rendering
+    wanted = stage_states_mm() if states is None else np.asarray(states, dtype=float)
+    content = {"experiment": "rigid-motion", "rig": "paper", "scale": float(scale), "lens": lens, "seed": seed,
+               "spp": spp, "read_noise_grey": 1.0, "states_mm": [float(v) for v in wanted]}
+    images, _ = stored_render("rigid-motion", content, lambda folder: render_rigid_motion(
+        "paper", folder, scale=scale, lens=lens, spp=spp, seed=seed, states=wanted, progress=progress,
+        overwrite=True), store)
+    truth = load_truth(images)
     m = measure_rigid_motion(truth, images, rig, subset_size=subset_size, step=step, points_dir=out_dir / "points",
                              progress=progress)
     rows, roi, shape = m["rows"], m["roi"], m["shape"]
@@ -204,7 +194,7 @@ def reproduce_rigid_motion(out_dir: str | Path, *, scale: float = 1.0, calib: st
                  goal_mean_um=_finite_or_none(pm / 10), goal_std_um=_finite_or_none(ps / 3),
                  meets_goal=bool(abs(r["mean_error_um"]) <= pm / 10 and r["std_um"] <= ps / 3)
                  if np.isfinite(pm) else None)
-    metrics = {"calibration": rig_text, "lens": lens, "scale": scale, "subset_px": subset_size, "step_px": step,
+    metrics = {"calibration": rig_text, "images": str(images), "lens": lens, "scale": scale, "subset_px": subset_size, "step_px": step,
                "roi_px": list(roi), "points": int(shape.x.size), "reference_points_triangulated": int(ok0.sum()),
                "reference_3d_error_um": {"unaligned_rms": float(1e3 * np.sqrt(np.mean(unaligned ** 2))),
                                          "aligned_rms": float(1e3 * np.sqrt(np.mean(aligned ** 2))),

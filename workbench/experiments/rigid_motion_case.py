@@ -46,6 +46,14 @@ TILT_GUESS_DEG = {"paper": {"left": (0.0, -4.0), "right": (0.0, 4.0)},
                   "scheimpflug": {"left": (0.0, 1.0), "right": (0.0, -1.0)}}
 
 
+def check(scenario: Scenario, instrument: Instrument | None = None) -> None:
+    """Refuse what this experiment cannot render (called for every case before a study starts)."""
+    if scenario.render.bit_depth != 8:
+        raise ValueError(f"scenario.render.bit_depth = {scenario.render.bit_depth}: the rigid-motion renders are "
+                         "8-bit images")
+    states_mm(scenario)
+
+
 def lens_terms(scenario: Scenario) -> dict | None:
     """The true-lens terms the instrument does not model, or None when all are zero."""
     terms = {k: getattr(scenario.lens, k) for k in ("k3", "s1", "s2", "s3", "s4")}
@@ -96,7 +104,8 @@ def render_states(scenario: Scenario, folder: Path) -> None:
 
     m, d, il = scenario.motion, scenario.drift, scenario.illumination
     stage = StageErrors(scale_error=m.stage_scale_error, straightness_um=m.stage_straightness_um,
-                        travel_mm=m.max_mm, axis_tilt_deg=m.stage_axis_tilt_deg)
+                        travel_mm=m.max_mm, axis_tilt_deg=m.stage_axis_tilt_deg,
+                        rotation_urad_per_mm=m.stage_rotation_urad_per_mm)
     drift = CameraDrift(camera=d.camera, translation_um_per_state=d.translation_um_per_state,
                         rotation_urad_per_state=d.rotation_urad_per_state)
     light = IlluminationChange(gain_per_state=il.gain_per_state, offset_grey_per_state=il.offset_grey_per_state,
@@ -107,7 +116,8 @@ def render_states(scenario: Scenario, folder: Path) -> None:
                         seed=scenario.seed, noise_grey=r.read_noise_grey, states=states_mm(scenario),
                         f_number=scenario.rig.f_number, progress=False, overwrite=True, stage_errors=stage,
                         drift=drift, illumination=light, lens_terms=lens_terms(scenario),
-                        electrons_per_grey=r.electrons_per_grey, specimen=specimen)
+                        electrons_per_grey=r.electrons_per_grey, specimen=specimen,
+                        focus_offset_mm=scenario.rig.focus_offset_mm)
 
 
 #: Painted speckle size when the scenario leaves it open, px at the working distance (as ``reproduce rigid-motion``).

@@ -201,14 +201,15 @@ def focus_plane_angle_deg(spec: SensorSpec, R_cam_from_world, t_cam_from_world_m
 def rigid_motion_truth(rig: StereoRig, *, lens: str = "thin", f_number: float = DEFAULT_F_NUMBER,
                        states_mm=None, specimen: BendingSpecimen | None = None, centre_world_mm=None,
                        direction_world=STAGE_UP_WORLD, seed: int = 0, stage_errors: StageErrors | None = None,
-                       lens_terms: dict | None = None) -> RigidMotionTruth:
+                       lens_terms: dict | None = None, focus_offset_mm: float = 0.0) -> RigidMotionTruth:
     """Set up the scene (no rendering): specimen, poses of every state, cameras; checks the view.
 
     ``specimen`` defaults to :meth:`BendingSpecimen.for_pixel_size` at the left camera's pixel footprint at
     the working distance (5 px speckles at any ``scale``), with speckle seed ``seed``. ``stage_errors``: the
     stage really moves the specimen by :func:`scenes.motion.true_stage_displacements_mm` (``states_mm`` stay
     the stage's readings). ``lens_terms``: distortion terms of the true lenses the rig's model lacks
-    (``k3``, ``s1``-``s4`` of :class:`scenes.camera.SensorSpec`).
+    (``k3``, ``s1``-``s4`` of :class:`scenes.camera.SensorSpec`). ``focus_offset_mm``: a thin lens is focused
+    this far beyond the face centre along the left camera's line of sight (a focusing error).
     """
     states = stage_states_mm() if states_mm is None else np.asarray(states_mm, dtype=float).reshape(-1)
     if states.size == 0 or not np.all(np.isfinite(states)):
@@ -218,7 +219,8 @@ def rigid_motion_truth(rig: StereoRig, *, lens: str = "thin", f_number: float = 
         pixel_mm = float(np.linalg.norm(t0)) / rig.left.fx
         specimen = BendingSpecimen.for_pixel_size(pixel_mm, seed=seed)
     poses = stage_poses(R0, t0, states, direction_world, errors=stage_errors)
-    specs = rigid_motion_specs(rig, lens, f_number, t0)
+    focus = t0 + float(focus_offset_mm) * t0 / np.linalg.norm(t0)
+    specs = rigid_motion_specs(rig, lens, f_number, focus)
     if lens_terms:
         specs = {side: spec.with_(**lens_terms) for side, spec in specs.items()}
     check_specimen_in_view(specimen, poses, specs, rig)
@@ -227,6 +229,8 @@ def rigid_motion_truth(rig: StereoRig, *, lens: str = "thin", f_number: float = 
         info["stage_errors"] = dataclasses.asdict(stage_errors)
     if lens_terms:
         info["true_lens_terms"] = {k: float(v) for k, v in lens_terms.items()}
+    if focus_offset_mm:
+        info["focus_offset_mm"] = float(focus_offset_mm)
     if lens == "thin":
         blur = {side: max(face_blur_px(specimen, pose, specs[side], *rig.pose(side)) for pose in poses)
                 for side in SIDES}
@@ -247,7 +251,7 @@ def render_rigid_motion(rig: StereoRig | str, out_dir, scale: float = 1.0, lens:
                         centre_world_mm=None, progress: bool = True, overwrite: bool = False,
                         stage_errors: StageErrors | None = None, drift: CameraDrift | None = None,
                         illumination: IlluminationChange | None = None, lens_terms: dict | None = None,
-                        electrons_per_grey: float | None = None) -> RigidMotionTruth:
+                        electrons_per_grey: float | None = None, focus_offset_mm: float = 0.0) -> RigidMotionTruth:
     """Render the rigid-motion test in both cameras and write ``left_KK.png``, ``right_KK.png``, ``truth.json``
     and ``manifest.json`` (truth and manifest last: a folder with a manifest is complete).
 
@@ -280,7 +284,7 @@ def render_rigid_motion(rig: StereoRig | str, out_dir, scale: float = 1.0, lens:
     noise = SensorNoise(read_noise_grey=noise_grey, electrons_per_grey=electrons_per_grey, bit_depth=8)
     truth = rigid_motion_truth(rig, lens=lens, f_number=f_number, states_mm=states, specimen=specimen,
                                centre_world_mm=centre_world_mm, seed=seed, stage_errors=stage_errors,
-                               lens_terms=lens_terms)
+                               lens_terms=lens_terms, focus_offset_mm=focus_offset_mm)
     out_dir = Path(out_dir)
     digits = max(2, len(str(len(truth.poses) - 1)))
     planned = [f"{side}_{k:0{digits}d}.png" for k in range(len(truth.poses)) for side in SIDES]
