@@ -105,12 +105,15 @@ def test_a_partial_dataset_is_never_read_and_a_dead_process_partial_is_cleared(t
     folder, reused = store.ensure("demo", "abc", {"k": 1}, render)
     assert (reused, len(calls), (folder / "a.txt").read_text()) == (False, 1, "x")
     assert store.ensure("demo", "abc", {"k": 1}, render) == (folder, True) and len(calls) == 1
+    import socket
+    host = socket.gethostname()
     dead = subprocess.Popen([sys.executable, "-c", "pass"])
     dead.wait()
-    (store.root / ".partial" / f"demo-def-{dead.pid}").mkdir(parents=True)
-    (store.root / ".partial" / f"demo-ghi-{os.getpid()}").mkdir(parents=True)
+    (store.root / ".partial" / f"demo-def@{host}-{dead.pid}").mkdir(parents=True)
+    (store.root / ".partial" / f"demo-ghi@{host}-{os.getpid()}").mkdir(parents=True)      # alive: kept
+    (store.root / ".partial" / f"demo-jkl@elsewhere-{dead.pid}").mkdir(parents=True)     # another host's: kept
     removed = store.clear_partials()
-    assert [p.name for p in removed] == [f"demo-def-{dead.pid}"]
+    assert [p.name for p in removed] == [f"demo-def@{host}-{dead.pid}"]
 
 
 def _run_cli(args, **kw):

@@ -2,7 +2,7 @@
 
 ``<store>/<kind>-<hash>/`` holds a dataset's files, ``scenario.json`` (the content it is the hash of) and
 ``manifest.json`` (:mod:`workbench.manifest`). A dataset is rendered into a temporary folder
-``<store>/.partial/<kind>-<hash>-<pid>/`` and renamed into place when complete, so a folder under its hash
+``<store>/.partial/<kind>-<hash>@<host>-<pid>/`` and renamed into place when complete, so a folder under its hash
 is always complete and a killed render leaves only a partial folder that is never read (and is cleared by a
 later run once its process is gone). Processes that need the same dataset at once take a lock file: one
 renders, the others wait and reuse it.
@@ -17,6 +17,7 @@ import fcntl
 import json
 import os
 import shutil
+import socket
 import time
 from pathlib import Path
 from typing import Callable
@@ -25,6 +26,7 @@ from measurement.files import atomic_write_text
 from workbench.manifest import complete_manifest
 
 PARTIAL = ".partial"
+_HOST = socket.gethostname().replace("@", "_").replace("/", "_")
 LOCKS = ".locks"
 ENV_STORE = "WORKBENCH_STORE"
 
@@ -82,14 +84,18 @@ class DatasetStore:
         return folder if complete_manifest(folder, kind) is not None else None
 
     def clear_partials(self) -> list[Path]:
-        """Delete partial folders left by processes that no longer run; returns what was deleted."""
+        """Delete partial folders left by processes of this host that no longer run; returns what was deleted.
+
+        Partial folders are named ``<kind>-<hash>@<host>-<pid>``: on a shared file system another host's
+        worker may be rendering into its own, so only this host's dead processes are cleared.
+        """
         removed = []
         partial = self.root / PARTIAL
         if not partial.is_dir():
             return removed
         for folder in partial.iterdir():
-            pid = folder.name.rsplit("-", 1)[-1]
-            if pid.isdigit() and not _pid_alive(int(pid)):
+            host, _, pid = folder.name.rpartition("@")[2].rpartition("-")
+            if host == _HOST and pid.isdigit() and not _pid_alive(int(pid)):
                 shutil.rmtree(folder, ignore_errors=True)
                 removed.append(folder)
         return removed
@@ -108,7 +114,7 @@ class DatasetStore:
             if found is not None:
                 return found, True
             final = self.path(kind, key)
-            tmp = self.root / PARTIAL / f"{kind}-{key}-{os.getpid()}"
+            tmp = self.root / PARTIAL / f"{kind}-{key}@{_HOST}-{os.getpid()}"
             shutil.rmtree(tmp, ignore_errors=True)
             tmp.mkdir(parents=True)
             start = time.perf_counter()
