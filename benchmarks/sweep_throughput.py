@@ -5,7 +5,7 @@ Goal (error-budget issue): throughput from 1 to 2 workers on 2 cores >= 1.8x. Th
 both runs do identical work. Each cluster is started and warmed first (one case per worker: imports, numba
 kernels from the on-disk cache); the timed part is the sweep itself. Nothing else may run on the machine.
 
-    .venv/bin/python benchmarks/sweep_throughput.py [--cases-per-axis 4] [--repeats 2]
+    .venv/bin/python benchmarks/sweep_throughput.py [--cases-per-axis 6] [--repeats 2]
 """
 from __future__ import annotations
 
@@ -49,7 +49,7 @@ def timed(workers: int, n: int, repeats: int, root: Path) -> tuple[float, int]:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--cases-per-axis", type=int, default=4)
+    parser.add_argument("--cases-per-axis", type=int, default=6)
     parser.add_argument("--repeats", type=int, default=2)
     args = parser.parse_args()
     root = Path(tempfile.mkdtemp(prefix="sweep-throughput-"))

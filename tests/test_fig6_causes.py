@@ -47,9 +47,12 @@ def test_verdicts_follow_the_tolerances_and_the_hand_computed_extrapolation(tmp_
     # the scale case: 40 µm at 10 mm for e = -0.004, so the paper's 50.9 µm needs e = -0.004 * 50.9 / 40
     scale = next(v for v in result["single_causes"] if v["case"] == "scale")
     assert scale["value_for_paper_mean"] == pytest.approx(-0.004 * 50.9 / 40.0, rel=1e-9)
-    assert scale["std_at_that_value_um"] == pytest.approx(0.5, rel=1e-9) and "mean only" in scale["verdict"]
+    assert scale["std_at_that_value_um"] == pytest.approx(0.5, rel=1e-9) and scale["verdict"].startswith("mean only")
+    # the roll case grows the std by hypot(0.5, 8) - hypot(0.5, 0.8) µm from 1 to 10 mm; the paper's 10.3 - 1.9
     roll = next(v for v in result["single_causes"] if v["case"] == "roll")
-    assert roll["value_for_paper_mean"] is None and roll["verdict"].startswith("ruled out")
+    growth = np.hypot(0.5, 8.0) - np.hypot(0.5, 0.8)
+    assert roll["value_for_paper_mean"] is None and roll["verdict"].startswith("std only")
+    assert roll["value_for_paper_growth"] == pytest.approx([0.0, 0.0, 40.0 * (10.3 - 1.9) / growth], rel=1e-9)
     # the bent board adds sqrt(0.30^2 - 0.04^2) / 0.25 = 1.19 px at full resolution: more than the paper's 0.35
     assert by_case["bent"]["calibration_misfit_full_res_px"] == pytest.approx(np.sqrt(0.30 ** 2 - 0.04 ** 2) / 0.25)
     assert result["matching"] == ["both"] and result["curves_only"] == ["bent"]

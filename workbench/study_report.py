@@ -233,7 +233,9 @@ def write_study_outputs(study: Study, out_dir: Path, records: list[dict], summar
     ds = gather(study, records, versions)
     out = {"netcdf": save_netcdf(ds, out_dir / "results.nc"), "csv": save_csv(ds, out_dir / "results.csv")}
     figures = metric_figures(ds, study, getattr(module, "FLOORS", {}), getattr(module, "METRICS", {}))
-    out["html"] = write_html(out_dir / "report.html", study, ds, figures, summary_lines)
+    verdict = module.summary_lines(ds) if hasattr(module, "summary_lines") else []
+    out["html"] = write_html(out_dir / "report.html", study, ds, figures, summary_lines + verdict)
+    out["summary"] = verdict
     return out
 
 

@@ -57,7 +57,7 @@ def sweep_command(args) -> int:
     study = load_study(args.study)                   # every error before any work
     summary, lines, versions = _run(args, study)
     paths = write_study_outputs(study, args.out, summary.records, lines, versions)
-    print("\n".join(lines))
+    print("\n".join(lines + paths["summary"]))
     print(f"report: {paths['html']}")
     return 1 if summary.failed else 0
 
@@ -72,6 +72,8 @@ def fig6_causes_command(args) -> int:
     from workbench.study_report import write_study_outputs
 
     path = args.study or FIG6_STUDY
+    if path == FIG6_STUDY and FIG6_STUDY.is_relative_to(Path.cwd()):
+        path = FIG6_STUDY.relative_to(Path.cwd())      # the report names the file as the user would
     study = load_study(path)
     if study.scenario.experiment != "rigid_motion" or study.mode != "cases" or \
             "perfect world" not in [c.name for c in study.cases]:

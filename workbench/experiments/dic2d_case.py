@@ -193,6 +193,23 @@ def measure(scenario: Scenario, instrument: Instrument, folder: Path) -> dict:
             "independent_points": int(sel.sum())}
 
 
+def summary_lines(ds) -> list[str]:
+    """The study's verdict on the theory: measured random error (RMS over the seeds) over each floor."""
+    out = []
+    rms = lambda da: np.sqrt((da ** 2).mean("repeat"))  # noqa: E731 - pooled over the seeds
+    for floor, name in (("predicted_error_px", "Pan 2008 (sqrt(2) sigma / sqrt(SSSIG))"),
+                        ("shape_floor_px", "the full estimator (shape function + ZNSSD offset/gain)")):
+        if "random_error_px" not in ds or floor not in ds:
+            continue
+        ratio = (rms(ds["random_error_px"]) / rms(ds[floor])).values.ravel()
+        ratio = ratio[np.isfinite(ratio)]
+        if ratio.size:
+            inside = int(np.sum(np.abs(ratio - 1.0) <= 0.10))
+            out.append(f"random error / {name}: {ratio.min():.3f} to {ratio.max():.3f}; within 10 % at {inside} of "
+                       f"{ratio.size} grid points")
+    return out
+
+
 def check(scenario: Scenario, instrument: Instrument | None = None) -> None:
     """Refuse what this experiment cannot do (called for every case before a study starts)."""
     if instrument is not None and scenario.image2d.size_px - 2 * (instrument.subset_px // 2 + 8) < 1:

@@ -86,41 +86,76 @@ def _text(value: np.ndarray) -> str:
 
 
 def single_cause_verdicts(summaries: list[dict]) -> list[dict]:
-    """For every case that sets one numeric parameter: the value that reproduces the paper's mean at 10 mm
-    (linear extrapolation from the baseline) and the std at 10 mm it would then give; the verdict."""
+    """What each single cause (a case that sets one numeric parameter) can explain, by its signature.
+
+    Against the perfect world, at 10 mm: its mean effect ``dm``, its std *growth* ``g`` (std at 10 mm minus
+    std at 1 mm, beyond the perfect world's) and its *floor* (std at 1 mm beyond the perfect world's). A cause
+    that moves the mean is extrapolated linearly to the value that gives the paper's mean, one that only grows
+    the std to the value that gives the paper's growth (10.3 - 1.9 µm); the std (or mean) and the calibration
+    misfit are scaled with it. It explains both alone only if the other curve then fits too and its board
+    would not have shown in the paper's calibration.
+    """
     base = next(s for s in summaries if s["case"] == BASELINE)
-    pm10, ps10 = (float(v[-1]) for v in paper_at(CHECK_MM))
-    b_mean, b_std = base["mean_um"][-1], base["std_um"][-1]
+    pm, ps = (np.asarray(v, dtype=float) for v in paper_at(CHECK_MM))
+    paper_growth = float(ps[-1] - ps[0])
+    b_mean, b_std = np.asarray(base["mean_um"]), np.asarray(base["std_um"])
     verdicts = []
     for s in summaries:
         numeric = {k: v for k, v in s["set"].items() if _is_number(v) or
                    (isinstance(v, (list, tuple)) and v and all(_is_number(x) for x in v))}
-        if s["case"] == BASELINE or len(s["set"]) != 1 or len(numeric) != 1:
+        if s["case"] == BASELINE or len(numeric) != 1:          # one numeric parameter (and e.g. which camera)
             continue
         (parameter, value), = numeric.items()
         value = np.asarray(value, dtype=float)          # a vector parameter (e.g. a rotation) scales as a whole
-        effect = s["mean_um"][-1] - b_mean
-        growth = math.sqrt(max(s["std_um"][-1] ** 2 - b_std ** 2, 0.0))
-        v = {"case": s["case"], "parameter": parameter, "simulated_value": value.tolist(),
-             "mean_at_10mm_um": s["mean_um"][-1], "std_at_10mm_um": s["std_um"][-1]}
+        mean, std = np.asarray(s["mean_um"]), np.asarray(s["std_um"])
+        dm = float(mean[-1] - b_mean[-1])
+        growth = float((std[-1] - std[0]) - (b_std[-1] - b_std[0]))
+        floor = float(std[0] - b_std[0])
         misfit = s.get("calibration_misfit_full_res_px", 0.0)
-        calibration_note = ("" if s.get("consistent_with_paper_calibration", True) else
-                            f"; and at this value it adds a calibration misfit of {misfit:.2f} px at full resolution, "
-                            f"more than the paper's whole reprojection RMS of {PAPER_REPROJECTION_PX} px")
-        if abs(effect) < 0.05 * pm10:
-            v.update(value_for_paper_mean=None, std_at_that_value_um=None, verdict=(
-                f"ruled out: at {parameter} = {_text(value)} it moves the mean at 10 mm by only {effect:+.2f} µm "
-                f"(paper {pm10:.1f} µm); the value needed would be over {abs(pm10 / effect) if effect else float('inf'):.0f}x "
-                "larger, far outside its realistic range" + calibration_note))
+        v = {"case": s["case"], "parameter": parameter, "simulated_value": value.tolist(),
+             "mean_effect_at_10mm_um": dm, "std_growth_um": growth, "std_floor_change_um": floor,
+             "value_for_paper_mean": None, "value_for_paper_growth": None, "std_at_that_value_um": None}
+        moves_mean = abs(dm) >= 0.05 * pm[-1]
+        grows_std = growth >= 0.10 * paper_growth
+        if moves_mean:
+            k = (pm[-1] - b_mean[-1]) / dm
+            std_then = float(b_std[-1] + (std[-1] - b_std[-1]) * abs(k))
+            misfit_then = misfit * abs(k)
+            v.update(value_for_paper_mean=(value * k).tolist(), std_at_that_value_um=std_then,
+                     calibration_misfit_at_that_value_px=misfit_then)
+            std_fits = abs(std_then / ps[-1] - 1.0) <= STD_TOLERANCE
+            text = (f"{parameter} = {_text(value * k)} (linear extrapolation) gives the paper's mean at 10 mm and a "
+                    f"std of {std_then:.1f} µm (paper {ps[-1]:.1f} µm)")
+            if std_fits and misfit_then <= PAPER_REPROJECTION_PX:
+                verdict = f"can explain both alone: {text}"
+            elif std_fits:
+                verdict = (f"reproduces both curves but not the paper's calibration: {text}, and its board would "
+                           f"add {misfit_then:.2f} px of calibration misfit at full resolution (the paper's whole "
+                           f"reprojection RMS: {PAPER_REPROJECTION_PX} px): ruled out")
+            else:
+                verdict = f"mean only: {text}: ruled out as the sole cause" + (
+                    "" if misfit_then <= PAPER_REPROJECTION_PX else
+                    f"; its board would also add {misfit_then:.2f} px of calibration misfit (paper: "
+                    f"{PAPER_REPROJECTION_PX} px in all)")
+        elif grows_std:
+            k = paper_growth / growth
+            misfit_then = misfit * abs(k)
+            v.update(value_for_paper_growth=(value * k).tolist(), calibration_misfit_at_that_value_px=misfit_then)
+            verdict = (f"std only: {parameter} = {_text(value * k)} (linear extrapolation) gives the paper's std "
+                       f"growth ({paper_growth:.1f} µm from 1 to 10 mm) and leaves the mean as it is "
+                       f"({dm:+.2f} µm at 10 mm): part of an explanation, not the sole cause")
+            if misfit_then > PAPER_REPROJECTION_PX:
+                verdict += (f"; but its board would add {misfit_then:.2f} px of calibration misfit (paper: "
+                            f"{PAPER_REPROJECTION_PX} px in all): ruled out")
+        elif floor >= 0.1 * ps[0]:
+            verdict = (f"floor only: at {parameter} = {_text(value)} the std rises by {floor:+.2f} µm at every travel "
+                       f"(the paper's 1.9 µm at 1 mm is above the perfect world's {b_std[0]:.2f} µm) and neither "
+                       "the mean nor the growth change: part of an explanation, not the sole cause")
         else:
-            k = (pm10 - b_mean) / effect
-            std_then = math.sqrt(b_std ** 2 + (growth * k) ** 2)
-            fits = abs(std_then / ps10 - 1.0) <= STD_TOLERANCE
-            v.update(value_for_paper_mean=(value * k).tolist(), std_at_that_value_um=std_then, verdict=(
-                (f"can explain both alone: {parameter} = {_text(value * k)} gives the paper's mean and a std of "
-                 f"{std_then:.1f} µm at 10 mm (paper {ps10:.1f})") if fits else
-                (f"mean only: {parameter} = {_text(value * k)} gives the paper's mean at 10 mm, but then a std of "
-                 f"{std_then:.1f} µm (paper {ps10:.1f} µm): ruled out as the sole cause")) + calibration_note)
+            verdict = (f"ruled out: at {parameter} = {_text(value)} it changes the mean at 10 mm by {dm:+.2f} µm "
+                       f"(paper {pm[-1]:.1f}) and the std growth by {growth:+.2f} µm (paper {paper_growth:.1f}): "
+                       "the value needed would be far outside its realistic range")
+        v["verdict"] = verdict
         verdicts.append(v)
     return verdicts
 
