@@ -265,35 +265,39 @@ def test_an_older_dataset_without_manifest_is_refused_and_replaced_by_its_truth(
     assert sorted(p.name for p in out.iterdir()) == ["left_000.png", MANIFEST_NAME, "right_000.png", "truth.json"]
 
 
-def test_experiments_reuse_only_complete_renders(tmp_path):
-    """reproduce calibration / rigid-motion / bending reuse renders whose settings match; a half-written folder
-    (no manifest, or a file of it missing) must never read as valid."""
-    from workbench.experiments.calibration import _reusable_truth as reusable_boards
+def test_the_render_store_reuses_only_complete_datasets(tmp_path):
+    """The one render cache of every experiment: a stored dataset is reused; one with a file missing, or one
+    whose manifest was never written (an interrupted render), is never read as valid and is rendered again."""
     from workbench.experiments.checkerboard_views import write_checkerboard_dataset
-    from workbench.experiments.rigid_motion import _reusable_truth as reusable_rigid
-    from workbench.experiments.rigid_motion_scenes import render_rigid_motion
+    from workbench.experiments.rigid_motion_scenes import load_truth, render_rigid_motion
+    from workbench.store import DatasetStore, stored_render
 
     rig = paper_rig(0.1)
     noise = SensorNoise(read_noise_grey=1.0, bit_depth=8)
-    boards = tmp_path / "boards"
-    write_checkerboard_dataset(rig, boards, 2, 0, spp=2, noise=noise, progress=False)
-    assert reusable_boards(boards, rig, 2, 0, 2, noise) is not None
-    (boards / "right_001.png").unlink()
-    assert reusable_boards(boards, rig, 2, 0, 2, noise) is None
-    write_checkerboard_dataset(rig, boards, 2, 0, spp=2, noise=noise, progress=False, overwrite=True)
-    (boards / MANIFEST_NAME).unlink()               # images and truth.json all there, but never completed
-    assert reusable_boards(boards, rig, 2, 0, 2, noise) is None
+    store = DatasetStore(tmp_path / "store")
+    calls = []
 
-    motion = tmp_path / "motion"
+    def boards(folder):
+        calls.append(folder)
+        write_checkerboard_dataset(rig, folder, 2, 0, spp=2, noise=noise, progress=False, overwrite=True)
+
+    content = {"experiment": "test boards", "views": 2}
+    folder, reused = stored_render("checkerboard", content, boards, store)
+    assert not reused and len(calls) == 1
+    assert stored_render("checkerboard", content, boards, store) == (folder, True) and len(calls) == 1
+    (folder / "right_001.png").unlink()                   # a file of the dataset is gone
+    again, reused = stored_render("checkerboard", content, boards, store)
+    assert (again, reused, len(calls)) == (folder, False, 2) and (folder / "right_001.png").is_file()
+    (folder / MANIFEST_NAME).unlink()                    # images and truth.json all there, never completed
+    assert stored_render("checkerboard", content, boards, store)[1] is False and len(calls) == 3
+
     kw = dict(scale=0.1, lens="pinhole", seed=0, spp=1, states=[0.0, 1.0])
-    render_rigid_motion("paper", motion, noise_grey=1.0, progress=False, **kw)
-    assert reusable_rigid(motion, **kw) is not None
+    motion, reused = stored_render("rigid-motion", {"experiment": "test motion"}, lambda f: render_rigid_motion(
+        "paper", f, noise_grey=1.0, progress=False, overwrite=True, **kw), store)
+    assert not reused and load_truth(motion).states_mm.tolist() == [0.0, 1.0]
     (motion / MANIFEST_NAME).unlink()
-    assert reusable_rigid(motion, **kw) is None
-    with pytest.raises(ValueError, match="holds an earlier dataset"):
+    with pytest.raises(ValueError, match="holds an earlier dataset"):     # the folder's own guard stays
         render_rigid_motion("paper", motion, noise_grey=1.0, progress=False, **kw)
-    render_rigid_motion("paper", motion, noise_grey=1.0, progress=False, overwrite=True, **kw)
-    assert reusable_rigid(motion, **kw) is not None
 
 
 def test_reproduce_names_and_skips_a_state_that_fails_the_stereo_check(tmp_path, monkeypatch, capsys):

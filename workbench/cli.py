@@ -709,7 +709,7 @@ def _calibrate(args) -> int:
     cal, pairs = calibrate_from_files(left, right, square_mm=args.square_mm, pattern_size=args.pattern,
                                       model=args.model, tilt_guess_left_deg=args.tilt_guess_deg,
                                       tilt_guess_right_deg=guess_r, joint=not args.no_joint,
-                                      refine_corners=args.refine_corners, store=args.store)
+                                      refine_corners=args.refine_corners)
     json_text, yaml_text = _calibration_texts(cal, pairs)
     write_texts_together({args.out: json_text, yaml_out: yaml_text})       # both files or neither
     print(f"calibrated {args.model} from {len(pairs.left_files)} stereo views ({len(pairs.dropped)} images dropped)")
