@@ -327,7 +327,6 @@ def test_stage_rotation_turns_the_specimen_about_its_moving_centre_by_the_rate_t
     which moves by the nominal displacement; stage_fields give the same material positions (1e-9 mm)."""
     from scipy.spatial.transform import Rotation
 
-    from scenes.fields import RigidMotionField  # noqa: F401 - the fields' own type
     from scenes.motion import StageErrors, stage_fields, stage_poses
 
     errors = StageErrors(rotation_urad_per_mm=(0.0, 0.0, 40.0))
