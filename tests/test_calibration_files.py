@@ -456,3 +456,66 @@ def test_fronto_parallel_views_give_clear_error():
     pts = np.array([cam.project(obj + [dx, dy, 340.0]) for dx, dy in ((-25, -17), (-20, -15), (-28, -20), (-22, -12))])
     with pytest.raises(CalibrationError, match="fronto-parallel"):
         calibrate_camera(pts, obj, (cam.width, cam.height))
+
+
+def _write_plain_opencv_yaml(path, K1, D1, K2, D2, R, T, size, size_keys=("image_width", "image_height")):
+    """A stereo calibration as a cv2.stereoCalibrate script writes it (cv2.FileStorage, OpenCV's own writer)."""
+    fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_WRITE)
+    if size_keys == "imageSize":
+        fs.write("imageSize", np.array(size, dtype=np.int32).reshape(1, 2))
+    else:
+        fs.write(size_keys[0], int(size[0]))
+        fs.write(size_keys[1], int(size[1]))
+    for key, value in (("K1", K1), ("D1", D1), ("K2", K2), ("D2", D2), ("R", R), ("T", T)):
+        fs.write(key, np.asarray(value, dtype=np.float64))
+    fs.release()
+
+
+def test_a_plain_opencv_stereo_yaml_loads_and_projects_as_opencv_does(tmp_path):
+    """K1 D1 K2 D2 R T + image size, written by cv2.FileStorage: every camera reprojects within 1e-6 px of
+    cv2.projectPoints with the file's own K, D, R, T (OpenCV is the reference)."""
+    K1 = np.array([[2400.0, 0, 1210.5], [0, 2395.0, 1020.25], [0, 0, 1]])
+    K2 = np.array([[2380.0, 0, 1190.0], [0, 2390.5, 1031.0], [0, 0, 1]])
+    D1 = np.array([[-0.12, 0.08, 0.0011, -0.0007, 0.0]])           # OpenCV's 5-term vector, k3 = 0
+    D2 = np.array([[-0.10, 0.05, -0.0004, 0.0009]])
+    R = cv2.Rodrigues(np.array([0.01, 0.38, -0.02]))[0]
+    T = np.array([[-140.0], [1.5], [28.0]])
+    _write_plain_opencv_yaml(tmp_path / "stereo.yaml", K1, D1, K2, D2, R, T, (2448, 2048))
+    rig = load_opencv_yaml(tmp_path / "stereo.yaml")
+    assert (rig.left.width, rig.left.height) == (2448, 2048)
+    rng = np.random.default_rng(3)
+    X = np.column_stack([rng.uniform(-60, 60, 200), rng.uniform(-40, 40, 200), rng.uniform(350, 420, 200)])
+    ref_l = cv2.projectPoints(X, np.zeros(3), np.zeros(3), K1, D1)[0].reshape(-1, 2)
+    ref_r = cv2.projectPoints(X, cv2.Rodrigues(R)[0], T, K2, D2)[0].reshape(-1, 2)
+    assert np.max(np.abs(rig.left.project(X) - ref_l)) < 1e-6
+    assert np.max(np.abs(rig.right.project(X @ rig.R_right_from_left.T + rig.T_right_from_left_mm.ravel()) - ref_r)) < 1e-6
+    _write_plain_opencv_yaml(tmp_path / "size.yaml", K1, D1, K2, D2, cv2.Rodrigues(R)[0], T, (2448, 2048),
+                             size_keys="imageSize")                 # imageSize and a rotation vector R
+    other = load_opencv_yaml(tmp_path / "size.yaml")
+    np.testing.assert_allclose(other.R_right_from_left, R, atol=1e-12)
+
+
+def test_a_plain_opencv_yaml_with_terms_the_model_lacks_is_refused_with_their_cost(tmp_path):
+    K = np.array([[2400.0, 0, 1224.0], [0, 2400.0, 1024.0], [0, 0, 1]])
+    R, T = np.eye(3), np.array([[-140.0], [0.0], [28.0]])
+    D_k3 = np.array([[-0.1, 0.05, 0.0, 0.0, 0.3]])
+    _write_plain_opencv_yaml(tmp_path / "k3.yaml", K, D_k3, K, D_k3[:, :4], R, T, (2448, 2048))
+    # the cost, computed here with OpenCV: the corner pixel's ray projected with and without k3
+    ray = np.append(cv2.undistortPoints(np.array([[[0.0, 0.0]]]), K, D_k3).ravel(), 1.0)
+    cost = np.linalg.norm(cv2.projectPoints(ray[None], np.zeros(3), np.zeros(3), K, D_k3)[0].ravel()
+                          - cv2.projectPoints(ray[None], np.zeros(3), np.zeros(3), K, D_k3[0, :4])[0].ravel())
+    with pytest.raises(ValueError, match=rf"k3\.yaml.*D1.*has k3 = 0\.3: this instrument's lens model has k1, k2, "
+                                         rf"p1, p2 only; dropping the rest would move the image corners by up to "
+                                         rf"{cost:.3g} px"):
+        load_opencv_yaml(tmp_path / "k3.yaml")
+    skewed = K.copy()
+    skewed[0, 1] = 2.0
+    _write_plain_opencv_yaml(tmp_path / "skew.yaml", skewed, D_k3[:, :4], K, D_k3[:, :4], R, T, (2448, 2048))
+    with pytest.raises(ValueError, match=r"skew\.yaml.*K1.*skew term K\[0\]\[1\] = 2"):
+        load_opencv_yaml(tmp_path / "skew.yaml")
+    fs = cv2.FileStorage(str(tmp_path / "nosize.yaml"), cv2.FILE_STORAGE_WRITE)
+    for key, value in (("K1", K), ("D1", D_k3[:, :4]), ("K2", K), ("D2", D_k3[:, :4]), ("R", R), ("T", T)):
+        fs.write(key, value)
+    fs.release()
+    with pytest.raises(ValueError, match=r"nosize\.yaml.*has no image size: add image_width and image_height"):
+        load_opencv_yaml(tmp_path / "nosize.yaml")

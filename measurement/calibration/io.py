@@ -297,9 +297,111 @@ def _close(a, b) -> bool:
     return bool(np.all(np.abs(a - b) <= 1e-9 * np.maximum(1.0, np.abs(b))))
 
 
+#: Names of the camera matrices and distortion vectors in OpenCV stereo files written by other programs
+#: (``cv2.stereoCalibrate`` scripts, OpenCV's stereo_calib sample, ROS-style exports), camera n = 1 or 2.
+_PLAIN_K = ("K{n}", "M{n}", "cameraMatrix{n}", "camera_matrix_{n}")
+_PLAIN_D = ("D{n}", "distCoeffs{n}", "dist_coeffs_{n}")
+#: OpenCV's distortion vector: the terms after p2 (k3, k4-k6, s1-s4, tau_x, tau_y) by position.
+_OPENCV_EXTRA_TERMS = ("k3", "k4", "k5", "k6", "s1", "s2", "s3", "s4", "tau_x", "tau_y")
+
+
+def _first_key(doc: Node, names, n: int, what: str) -> Node:
+    for name in names:
+        node = doc.get(name.format(n=n))
+        if node is not None:
+            return node
+    raise doc.error(f"has no {what} of camera {n} (looked for {', '.join(x.format(n=n) for x in names)})")
+
+
+def _plain_size(doc: Node) -> tuple[int, int]:
+    for wk, hk in (("image_width", "image_height"), ("width", "height")):
+        if doc.get(wk) is not None and doc.get(hk) is not None:
+            return doc[wk].integer(1, MAX_IMAGE_PX), doc[hk].integer(1, MAX_IMAGE_PX)
+    for key in ("imageSize", "image_size"):
+        node = doc.get(key)
+        if node is not None:
+            value = node.value
+            if isinstance(value, dict):                      # an !!opencv-matrix of 2 values (any dtype)
+                value = node["data"].value
+            w, h = Node(value, node.file, key).array((2,), bound=MAX_IMAGE_PX)
+            if w != int(w) or h != int(h) or min(w, h) < 1:
+                raise node.error(f"must be two positive whole numbers (width, height), got {value!r}")
+            return int(w), int(h)
+    raise doc.error("has no image size: add image_width and image_height (px), or imageSize: [width, height]")
+
+
+def _plain_distortion(node: Node, K: np.ndarray, size: tuple[int, int]) -> np.ndarray:
+    """k1 k2 p1 p2 of an OpenCV distortion vector (4, 5, 8, 12 or 14 values); any later non-zero term is refused
+    with the pixels it would move the image corners by (this instrument's lens model has k1 k2 p1 p2)."""
+    value = node.value
+    if isinstance(value, dict):
+        rows, cols = int(value.get("rows", 0)), int(value.get("cols", 0))
+        if min(rows, cols) != 1 or rows * cols not in (4, 5, 8, 12, 14):
+            raise node.error(f"must be a 1 x N or N x 1 OpenCV distortion vector with N = 4, 5, 8, 12 or 14, got "
+                             f"{rows} x {cols}")
+        d = _opencv_matrix(node, (rows, cols)).ravel()
+    else:
+        d = np.asarray(Node(value, node.file, node.key).array((len(value),) if isinstance(value, list) else (4,)))
+        if d.size not in (4, 5, 8, 12, 14):
+            raise node.error(f"must hold 4, 5, 8, 12 or 14 distortion terms, got {d.size}")
+    extra = {name: float(v) for name, v in zip(_OPENCV_EXTRA_TERMS, d[4:]) if v != 0.0}
+    if extra:
+        w, h = size
+        corners = np.array([[0, 0], [w - 1, 0], [0, h - 1], [w - 1, h - 1]], dtype=np.float64)
+        ideal = cv2.undistortPoints(corners.reshape(-1, 1, 2), K, d).reshape(-1, 2)
+        rays = np.column_stack([ideal, np.ones(len(ideal))])
+        full = cv2.projectPoints(rays, np.zeros(3), np.zeros(3), K, d)[0].reshape(-1, 2)
+        short = cv2.projectPoints(rays, np.zeros(3), np.zeros(3), K, d[:4])[0].reshape(-1, 2)
+        cost = float(np.max(np.linalg.norm(full - short, axis=1)))
+        terms = ", ".join(f"{k} = {v:g}" for k, v in extra.items())
+        raise node.error(f"has {terms}: this instrument's lens model has k1, k2, p1, p2 only; dropping the rest "
+                         f"would move the image corners by up to {cost:.3g} px, so the file is refused")
+    return d[:4]
+
+
+def _rig_from_plain_opencv(doc: Node, path) -> CalibratedRig:
+    """A stereo calibration as OpenCV programs write it: K1 D1 K2 D2 R T (pinhole + Brown distortion) and the
+    image size. T is taken in mm (the unit of the square size given to the calibration)."""
+    size = _plain_size(doc)
+    cams = {}
+    for n, name in ((1, "left"), (2, "right")):
+        k_node = _first_key(doc, _PLAIN_K, n, "camera matrix")
+        K = _opencv_matrix(k_node, (3, 3))
+        if K[0, 1] != 0.0:
+            raise k_node.error(f"has a skew term K[0][1] = {K[0, 1]:g}: this instrument's camera model has no skew")
+        if not (np.allclose(K[1, 0], 0) and np.allclose(K[2], [0, 0, 1])):
+            raise k_node.error(f"is not a camera matrix [[fx, 0, cx], [0, fy, cy], [0, 0, 1]]: {K.tolist()}")
+        d = _plain_distortion(_first_key(doc, _PLAIN_D, n, "distortion vector"), K, size)
+        values = {"fx": K[0, 0], "fy": K[1, 1], "cx": K[0, 2], "cy": K[1, 2], "alpha_deg": 0.0, "beta_deg": 0.0,
+                  "k1": d[0], "k2": d[1], "p1": d[2], "p2": d[3]}
+        for key, v in values.items():
+            lo, hi = RANGES[key]
+            if not (lo < v < hi) or (key in ("fx", "fy") and not v > 0):
+                raise k_node.error(f"gives {key} = {v:g}, outside ({lo:g}, {hi:g})")
+        cams[name] = _camera({k: float(v) for k, v in values.items()}, size[0], size[1], "rmm", "pinhole", doc,
+                             lambda k: k)
+    r_node = doc["R"]
+    r_val = r_node.value
+    if isinstance(r_val, dict) and (int(r_val.get("rows", 0)), int(r_val.get("cols", 0))) in ((3, 1), (1, 3)):
+        R = cv2.Rodrigues(_opencv_matrix(r_node, (int(r_val["rows"]), int(r_val["cols"]))).reshape(3, 1))[0]
+    else:
+        R = _opencv_matrix(r_node, (3, 3))
+    R = Node(R.tolist(), path, "R").rotation()
+    t_node = doc["T"]
+    t_val = t_node.value
+    shape = (int(t_val.get("rows", 3)), int(t_val.get("cols", 1))) if isinstance(t_val, dict) else (3, 1)
+    if shape not in ((3, 1), (1, 3)):
+        raise t_node.error(f"must be a 3-vector, got {shape[0]} x {shape[1]}")
+    T = _translation(Node(_opencv_matrix(t_node, shape).reshape(3, 1).tolist(), path, "T"), (3, 1))
+    return CalibratedRig("pinhole", cams["left"], cams["right"], R, T)
+
+
 def _rig_from_yaml_text(text: str, path) -> CalibratedRig:
     doc = _read_opencv_yaml(text, path)
     doc.mapping()
+    ours = any(doc.get(k) is not None for k in ("format", "model", "left_fx", "right_fx"))
+    if not ours:                                   # not the project's own export: an OpenCV program's file
+        return _rig_from_plain_opencv(doc, path)
     _check_format(doc["format"])
     model = _model(doc["model"])
     width, height = doc["image_width"].integer(1, MAX_IMAGE_PX), doc["image_height"].integer(1, MAX_IMAGE_PX)
@@ -326,6 +428,11 @@ def load_opencv_yaml(path: str | Path) -> CalibratedRig:
 
     Every key the rig is built from is required (``format``, ``model``, ``image_width``, ``image_height``,
     ``{left,right}_{tilt_model, fx, ..., p2}``, ``R``, ``T``); ``K1``/``D1``/``K2``/``D2`` are optional but must
-    agree with the named parameters. Raises FileFormatError (a ValueError) naming the file and the key.
+    agree with the named parameters. A file with none of ``format``, ``model``, ``left_fx``, ``right_fx`` is read
+    as other OpenCV programs write a stereo
+    calibration (``cv2.stereoCalibrate``): ``K1``/``M1``/``cameraMatrix1``, ``D1``/``distCoeffs1``, the same
+    for camera 2, ``R`` (3 x 3 or a rotation vector), ``T`` (mm) and the image size (``image_width`` and
+    ``image_height``, or ``imageSize``); a pinhole rig. Raises FileFormatError (a ValueError) naming the file
+    and the key.
     """
     return _rig_from_yaml_text(read_text_file(path, "calibration file", max_bytes=MAX_YAML_BYTES), path)
