@@ -113,6 +113,7 @@ def test_swapped_reference_images_are_refused_with_the_likely_cause(stereo, tmp_
     line = _error_line(capsys)
     assert "reference shape" in line and "median triangulation residual" in line and "above 0.5 px" in line
     assert "swapped" in line and "wrong order" in line and "--max-residual-px" in line
+    assert f"calibration {stereo / 'rig.yaml'}" in line      # names the calibration it does not fit
     assert not out.exists()                        # refused before the first write
 
 

@@ -558,7 +558,7 @@ def _stereo(args) -> int:
     planned = ["reference.csv", "reference.vtk", "summary.csv"] + [f"{n}.{e}" for n in names for e in ("csv", "vtk")]
     prepare_folder(args.out, "stereo", planned, overwrite=args.overwrite, dry_run=True)
     thresholds = dict(max_median_residual_px=args.max_residual_px, min_measured_fraction=args.min_measured_fraction)
-    hint = (f" (thresholds: --max-residual-px {args.max_residual_px:g}, "
+    hint = (f" (calibration {args.calib}; thresholds: --max-residual-px {args.max_residual_px:g}, "
             f"--min-measured-fraction {args.min_measured_fraction:g})")
 
     try:

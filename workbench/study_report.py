@@ -135,6 +135,11 @@ def metric_figures(ds, study: Study, floors: dict, descriptions: dict) -> list[t
         floor = ds[floors[m][0]].mean("repeat", skipna=True) if m in floors and floors[m][0] in ds else None
         own = [d for d in da.dims if d not in study.dims]
         axes_dims = [d for d in study.dims if d != "repeat"]
+        averaged = axes_dims[2:] if not own else axes_dims[1:]
+        if averaged:               # more axes than a plot shows: the rest are averaged (said in the title)
+            mean, std = mean.mean(averaged), std.mean(averaged)
+            floor = floor.mean(averaged) if floor is not None else None
+            axes_dims = [d for d in axes_dims if d not in averaged]
         panels = 2 if (len(axes_dims) == 2 and not own) else 1
         fig, axs = plt.subplots(1, panels, figsize=(6.2 * panels, 4.2), squeeze=False)
         ax = axs[0, 0]
@@ -191,7 +196,7 @@ def metric_figures(ds, study: Study, floors: dict, descriptions: dict) -> list[t
         ax.grid(alpha=0.3)
         if ax.get_legend_handles_labels()[0]:
             ax.legend(fontsize=7)
-        title = descriptions.get(m, m)
+        title = descriptions.get(m, m) + (f" (mean over {', '.join(averaged)})" if averaged else "")
         fig.suptitle(f"{m}: {title}", fontsize=9)
         fig.tight_layout()
         out.append((m, _png(fig)))
