@@ -519,3 +519,31 @@ def test_a_plain_opencv_yaml_with_terms_the_model_lacks_is_refused_with_their_co
     fs.release()
     with pytest.raises(ValueError, match=r"nosize\.yaml.*has no image size: add image_width and image_height"):
         load_opencv_yaml(tmp_path / "nosize.yaml")
+
+
+def test_calibration_convert_round_trips_and_states_what_opencv_k_and_d_cost(tmp_path, capsys):
+    """plain OpenCV YAML -> JSON -> YAML: every converted camera reprojects within 1e-6 px of cv2.projectPoints
+    with the source's K, D; an RMM camera tilted about one axis is exactly OpenCV's tilted model (K/D cost
+    < 1e-6 px), one tilted about two axes is not, and the command says by how much."""
+    from measurement.calibration.io import opencv_distortion_cost_px
+    from measurement.camera import ScheimpflugCamera
+    from workbench.cli import main
+
+    K = np.array([[2400.0, 0, 1210.0], [0, 2395.0, 1020.0], [0, 0, 1]])
+    D = np.array([[-0.12, 0.08, 0.001, -0.0007]])
+    R, T = cv2.Rodrigues(np.array([0.0, 0.38, 0.0]))[0], np.array([[-140.0], [1.0], [28.0]])
+    _write_plain_opencv_yaml(tmp_path / "plain.yaml", K, D, K, D, R, T, (2448, 2048))
+    assert main(["calibration", "convert", str(tmp_path / "plain.yaml"), str(tmp_path / "rig.json")]) == 0
+    assert main(["calibration", "convert", str(tmp_path / "rig.json"), str(tmp_path / "back.yaml")]) == 0
+    printed = capsys.readouterr().out
+    assert "reprojects within 0 px of the source" in printed and "projects it exactly" in printed
+    X = np.column_stack([np.linspace(-50, 50, 30), np.linspace(-40, 40, 30), np.linspace(360, 420, 30)])
+    reference = cv2.projectPoints(X, np.zeros(3), np.zeros(3), K, D)[0].reshape(-1, 2)
+    for name in ("rig.json", "back.yaml"):
+        assert np.max(np.abs(load_calibration(tmp_path / name).left.project(X) - reference)) < 1e-6
+    one_axis = ScheimpflugCamera(fx=2400, fy=2400, cx=1224, cy=1024, alpha_deg=0.0, beta_deg=-4.5, k1=-0.1,
+                                 width=2448, height=2048)
+    two_axis = dataclasses.replace(one_axis, alpha_deg=0.6)
+    assert opencv_distortion_cost_px(one_axis) < 1e-6 < 0.1 < opencv_distortion_cost_px(two_axis)
+    assert main(["calibration", "convert", str(tmp_path / "rig.json"), str(tmp_path / "rig.txt")]) == 2
+    assert "rig.txt: the target is a .json or .yaml/.yml calibration file" in capsys.readouterr().err

@@ -26,7 +26,8 @@ from measurement.files import atomic_write_text
 from measurement.schema import FileFormatError, Node, read_json_file, read_text_file
 
 __all__ = ["FORMAT", "CONVENTION", "RANGES", "CalibratedRig", "FileFormatError", "calibration_to_dict",
-           "save_calibration", "load_calibration", "export_opencv_yaml", "load_opencv_yaml"]
+           "save_calibration", "load_calibration", "export_opencv_yaml", "load_opencv_yaml", "rig_to_dict", "save_rig",
+           "opencv_distortion_cost_px"]
 
 FORMAT = "scheimpflug-stereo-calibration/1"
 CONVENTION = ("Camera frame as OpenCV (x right, y down, z forward), pixel centres at integer coordinates. "
@@ -80,6 +81,45 @@ def calibration_to_dict(cal: StereoCalibration, extra: dict | None = None) -> di
     if extra:
         d.update(extra)
     return d
+
+
+def rig_to_dict(rig: CalibratedRig, extra: dict | None = None) -> dict:
+    """A loaded rig (no uncertainties or calibration history) in the calibration JSON format."""
+    d = {"format": FORMAT, "convention": CONVENTION, "model": rig.model,
+         "image_size_px": [rig.left.width, rig.left.height],
+         **{side: {"intrinsics": cam.intrinsics(), "tilt_model": cam.tilt_model, "width": cam.width,
+                   "height": cam.height} for side, cam in (("left", rig.left), ("right", rig.right))},
+         "stereo": {"R_right_from_left": np.asarray(rig.R_right_from_left).tolist(),
+                    "rvec_right_from_left": cv2.Rodrigues(np.asarray(rig.R_right_from_left))[0].ravel().tolist(),
+                    "T_right_from_left_mm": np.asarray(rig.T_right_from_left_mm).ravel().tolist()}}
+    if extra:
+        d.update(extra)
+    return d
+
+
+def save_rig(rig: CalibratedRig, path: str | Path, extra: dict | None = None) -> None:
+    """Write a loaded rig as calibration JSON (``.json``) or OpenCV YAML (``.yaml``/``.yml``), atomically, after
+    checking it loads back."""
+    path = Path(path)
+    if path.suffix.lower() in (".yml", ".yaml"):
+        export_opencv_yaml(rig, path)
+        return
+    text = json.dumps(rig_to_dict(rig, extra), indent=1)
+    _refuse_unloadable(lambda: _rig_from_json(Node(json.loads(text), path)))
+    atomic_write_text(path, text)
+
+
+def opencv_distortion_cost_px(cam: ScheimpflugCamera, n: int = 21) -> float:
+    """Largest distance (px) over an ``n x n`` grid of the image between ``cam``'s projection and OpenCV's
+    ``cv2.projectPoints`` with the ``K``/``D`` that :func:`export_opencv_yaml` writes for it: what a tool that
+    reads only K and D loses (0 where OpenCV's tilted model expresses the camera exactly)."""
+    u, v = np.meshgrid(np.linspace(0, cam.width - 1, n), np.linspace(0, cam.height - 1, n))
+    pixels = np.column_stack([u.ravel(), v.ravel()])
+    rays = cam.rays(pixels)
+    rays = rays / rays[:, 2:3]
+    ours = cam.project(rays)
+    theirs = cv2.projectPoints(rays, np.zeros(3), np.zeros(3), cam.K, _opencv_distortion(cam))[0].reshape(-1, 2)
+    return float(np.max(np.linalg.norm(ours - theirs, axis=1)))
 
 
 def save_calibration(cal: StereoCalibration, path: str | Path, extra: dict | None = None) -> None:
