@@ -86,6 +86,10 @@ def test_renders_are_stored_once_by_content_and_reused_across_instrument_setting
     assert len(datasets) == 6
     assert sum(r["reused"]["images"] for r in summary.records) == 6
     assert {r["datasets"]["images"] for r in summary.records} == {d.split("-", 1)[1] for d in datasets}
+    again = run_sweep(study, tmp_path / "out", store=store, workers=1, progress=False)
+    assert (again.already_done, again.computed) == (12, 0)
+    log = json.loads((tmp_path / "out" / "sweep-log.json").read_text())
+    assert [(r["computed"], r["already_done"]) for r in log["runs"]] == [(12, 0), (0, 12)]    # both runs kept
 
 
 def test_a_partial_dataset_is_never_read_and_a_dead_process_partial_is_cleared(tmp_path):

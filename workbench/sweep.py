@@ -143,12 +143,25 @@ def run_sweep(study: Study, out_dir: str | Path, *, store: DatasetStore | None =
                     cluster.close()
     summary = SweepSummary(len(cases), len(done), len(todo) - failed, failed, time.perf_counter() - start, out_dir,
                            records)
-    atomic_write_text(out_dir / "sweep-log.json", json.dumps(
-        {"study": study.name, "source": study.source, "cases": len(cases), "already_done": len(done),
-         "computed": summary.computed, "failed": failed, "seconds": round(summary.seconds, 2), "run_id": run_id,
-         "scheduler": scheduler or f"LocalCluster({workers} process workers)",
-         "store": str(store.root)}, indent=1))
+    run = {"study": study.name, "source": study.source, "cases": len(cases), "already_done": len(done),
+           "computed": summary.computed, "failed": failed, "seconds": round(summary.seconds, 2), "run_id": run_id,
+           "scheduler": scheduler or f"LocalCluster({workers} process workers)",
+           "store": str(store.root), "finished_at": time.strftime("%Y-%m-%dT%H:%M:%S%z")}
+    write_sweep_log(out_dir / "sweep-log.json", run)
     return summary
+
+
+def write_sweep_log(path: Path, run: dict) -> None:
+    """Append this run to ``sweep-log.json`` (every run of the study into this folder, newest last); the newest
+    run's figures are also at the top level."""
+    runs = []
+    try:
+        earlier = json.loads(path.read_text(encoding="utf-8"))
+        runs = earlier.get("runs", [earlier]) if isinstance(earlier, dict) else []
+        runs = [r for r in runs if isinstance(r, dict) and "run_id" in r]
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError):
+        pass
+    atomic_write_text(path, json.dumps({**run, "runs": runs + [run]}, indent=1))
 
 
 def _run_payload(payload: dict) -> dict:
