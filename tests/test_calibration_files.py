@@ -546,4 +546,26 @@ def test_calibration_convert_round_trips_and_states_what_opencv_k_and_d_cost(tmp
     two_axis = dataclasses.replace(one_axis, alpha_deg=0.6)
     assert opencv_distortion_cost_px(one_axis) < 1e-6 < 0.1 < opencv_distortion_cost_px(two_axis)
     assert main(["calibration", "convert", str(tmp_path / "rig.json"), str(tmp_path / "rig.txt")]) == 2
-    assert "rig.txt: the target is a .json or .yaml/.yml calibration file" in capsys.readouterr().err
+    assert "rig.txt: the target is a .json or .yaml/.yml/.xml calibration file" in capsys.readouterr().err
+
+
+def test_opencv_xml_files_load_and_convert_like_yaml(tmp_path, capsys):
+    """The same calibration as OpenCV XML (cv2.FileStorage's other format): a plain K1 D1 K2 D2 R T file loads
+    and projects as cv2.projectPoints (1e-6 px); a converted rig written as XML reads back exactly."""
+    from workbench.cli import main
+
+    K = np.array([[2400.0, 0, 1210.0], [0, 2395.0, 1020.0], [0, 0, 1]])
+    D = np.array([[-0.12, 0.08, 0.001, -0.0007]])
+    R, T = cv2.Rodrigues(np.array([0.0, 0.38, 0.0]))[0], np.array([[-140.0], [1.0], [28.0]])
+    _write_plain_opencv_yaml(tmp_path / "plain.xml", K, D, K, D, R, T, (2448, 2048))
+    assert (tmp_path / "plain.xml").read_text().lstrip().startswith("<?xml")
+    X = np.column_stack([np.linspace(-50, 50, 30), np.linspace(-40, 40, 30), np.linspace(360, 420, 30)])
+    reference = cv2.projectPoints(X, np.zeros(3), np.zeros(3), K, D)[0].reshape(-1, 2)
+    assert np.max(np.abs(load_calibration(tmp_path / "plain.xml").left.project(X) - reference)) < 1e-6
+    assert main(["calibration", "convert", str(tmp_path / "plain.xml"), str(tmp_path / "rig.json")]) == 0
+    assert main(["calibration", "convert", str(tmp_path / "rig.json"), str(tmp_path / "ours.xml")]) == 0
+    back = load_calibration(tmp_path / "ours.xml")
+    assert np.max(np.abs(back.left.project(X) - reference)) < 1e-6
+    (tmp_path / "broken.xml").write_text("<?xml version='1.0'?><opencv_storage><K1>")
+    with pytest.raises(ValueError, match=r"broken\.xml.*OpenCV FileStorage"):
+        load_calibration(tmp_path / "broken.xml")

@@ -450,8 +450,8 @@ def _parser() -> argparse.ArgumentParser:
     cal_sub = cal_files.add_subparsers(dest="what", required=True)
     conv = cal_sub.add_parser("convert", help="calibration JSON <-> OpenCV YAML (the project's, or K1 D1 K2 D2 R T "
                                               "as cv2.stereoCalibrate programs write it); says what the target costs")
-    conv.add_argument("source", type=Path, help="calibration .json, or OpenCV .yaml/.yml")
-    conv.add_argument("target", type=Path, help="output .json or .yaml/.yml (written atomically)")
+    conv.add_argument("source", type=Path, help="calibration .json, or OpenCV .yaml/.yml/.xml")
+    conv.add_argument("target", type=Path, help="output .json or .yaml/.yml/.xml (written atomically)")
     return p
 
 
@@ -529,7 +529,7 @@ def _load_rig(path: Path):
         raise ValueError(f"--calib {path} is a directory, not a calibration file")
     if not path.is_file():
         raise ValueError(f"calibration file not found: {path}")
-    return load_opencv_yaml(path) if path.suffix.lower() in (".yaml", ".yml") else load_calibration(path)
+    return load_opencv_yaml(path) if path.suffix.lower() in (".yaml", ".yml", ".xml") else load_calibration(path)
 
 
 def _check_against_calibration(image: np.ndarray, camera, what: str) -> None:
@@ -805,8 +805,8 @@ def _budget(args) -> int:
 def _calibration_convert(args) -> int:
     from measurement.calibration.io import load_calibration, opencv_distortion_cost_px, save_rig
 
-    if args.target.suffix.lower() not in (".json", ".yaml", ".yml"):
-        raise ValueError(f"{args.target}: the target is a .json or .yaml/.yml calibration file")
+    if args.target.suffix.lower() not in (".json", ".yaml", ".yml", ".xml"):
+        raise ValueError(f"{args.target}: the target is a .json or .yaml/.yml/.xml calibration file")
     if args.target.resolve() == args.source.resolve():
         raise ValueError(f"{args.target}: the target is the source file")
     rig = load_calibration(args.source)
@@ -819,7 +819,7 @@ def _calibration_convert(args) -> int:
         X = a.rays(np.column_stack([u.ravel(), v.ravel()])) * 400.0
         moved = float(np.nanmax(np.linalg.norm(a.project(X) - b.project(X), axis=1)))
         line = f"  {side}: the converted camera reprojects within {moved:.2g} px of the source"
-        if args.target.suffix.lower() in (".yaml", ".yml"):
+        if args.target.suffix.lower() in (".yaml", ".yml", ".xml"):
             cost = opencv_distortion_cost_px(a)
             line += (f"; a tool that reads only K{1 if side == 'left' else 2}/D{1 if side == 'left' else 2} "
                      + ("projects it exactly (OpenCV's tilted model expresses it)" if cost < 1e-6 else

@@ -98,10 +98,10 @@ def rig_to_dict(rig: CalibratedRig, extra: dict | None = None) -> dict:
 
 
 def save_rig(rig: CalibratedRig, path: str | Path, extra: dict | None = None) -> None:
-    """Write a loaded rig as calibration JSON (``.json``) or OpenCV YAML (``.yaml``/``.yml``), atomically, after
+    """Write a loaded rig as calibration JSON (``.json``) or OpenCV YAML/XML (``.yaml``/``.yml``/``.xml``), after
     checking it loads back."""
     path = Path(path)
-    if path.suffix.lower() in (".yml", ".yaml"):
+    if path.suffix.lower() in OPENCV_SUFFIXES:
         export_opencv_yaml(rig, path)
         return
     text = json.dumps(rig_to_dict(rig, extra), indent=1)
@@ -220,13 +220,14 @@ def load_calibration(path: str | Path) -> CalibratedRig:
         wrong type, a non-finite value or one outside :data:`RANGES`, R not a rotation, T zero.
     """
     path = Path(path)
-    if path.suffix.lower() in (".yml", ".yaml"):
+    if path.suffix.lower() in OPENCV_SUFFIXES:
         return load_opencv_yaml(path)
     return _rig_from_json(read_json_file(path, "calibration file"))
 
 
 def export_opencv_yaml(rig: CalibratedRig | StereoCalibration, path: str | Path) -> None:
-    """Write an OpenCV ``FileStorage`` YAML: K1, D1, K2, D2, R, T, image size, and every Table 1 parameter.
+    """Write an OpenCV ``FileStorage`` YAML (XML for a ``.xml`` path): K1, D1, K2, D2, R, T, image size, and every
+    Table 1 parameter.
 
     ``D1``/``D2`` are OpenCV's 14 ``CALIB_TILTED_MODEL`` coefficients. They reproduce our projection exactly only
     for the ``opencv-tilt`` and ``pinhole`` models or a single-axis RMM tilt; ``D_exact`` says which. The named
@@ -235,9 +236,11 @@ def export_opencv_yaml(rig: CalibratedRig | StereoCalibration, path: str | Path)
     """
     if isinstance(rig, StereoCalibration):
         rig = CalibratedRig(rig.model, rig.left.camera, rig.right.camera, rig.R_right_from_left, rig.T_right_from_left_mm)
-    fs = cv2.FileStorage(".yaml", cv2.FILE_STORAGE_WRITE | cv2.FILE_STORAGE_MEMORY | cv2.FILE_STORAGE_FORMAT_YAML)
+    fmt = _storage_format(path)               # .xml: the same keys in OpenCV's XML
+    fs = cv2.FileStorage(".xml" if fmt == cv2.FILE_STORAGE_FORMAT_XML else ".yaml",
+                         cv2.FILE_STORAGE_WRITE | cv2.FILE_STORAGE_MEMORY | fmt)
     if not fs.isOpened():                                       # pragma: no cover
-        raise OSError(f"cannot write {path}: OpenCV could not open a YAML FileStorage")
+        raise OSError(f"cannot write {path}: OpenCV could not open a FileStorage")
     fs.write("format", FORMAT)
     fs.write("model", rig.model)
     fs.write("convention", CONVENTION)
@@ -300,7 +303,18 @@ MAX_YAML_BYTES = 1 << 20
 MAX_YAML_NESTING_TOKENS = 10_000
 
 
+#: OpenCV FileStorage formats by file suffix (the same keys in either).
+_STORAGE_FORMAT = {".yaml": cv2.FILE_STORAGE_FORMAT_YAML, ".yml": cv2.FILE_STORAGE_FORMAT_YAML,
+                   ".xml": cv2.FILE_STORAGE_FORMAT_XML}
+OPENCV_SUFFIXES = tuple(_STORAGE_FORMAT)
+
+
+def _storage_format(path) -> int:
+    return _STORAGE_FORMAT.get(Path(str(path)).suffix.lower(), cv2.FILE_STORAGE_FORMAT_YAML)
+
+
 def _read_opencv_yaml(text: str, path) -> Node:
+    kind = "XML" if _storage_format(path) == cv2.FILE_STORAGE_FORMAT_XML else "YAML"
     if len(text.encode("utf-8", "surrogatepass")) > MAX_YAML_BYTES:
         raise FileFormatError(path, "", f"is larger than {MAX_YAML_BYTES} bytes: not a calibration YAML")
     tokens = sum(text.count(c) for c in "[{-:?")
@@ -308,15 +322,15 @@ def _read_opencv_yaml(text: str, path) -> Node:
         raise FileFormatError(path, "", f"has {tokens} of the characters '[{{-:?' (more than "
                                         f"{MAX_YAML_NESTING_TOKENS}): too deeply nested for a calibration YAML")
     try:
-        fs = cv2.FileStorage(text, cv2.FILE_STORAGE_READ | cv2.FILE_STORAGE_MEMORY | cv2.FILE_STORAGE_FORMAT_YAML)
+        fs = cv2.FileStorage(text, cv2.FILE_STORAGE_READ | cv2.FILE_STORAGE_MEMORY | _storage_format(path))
     except (cv2.error, SystemError) as err:
-        raise FileFormatError(path, "", f"is not an OpenCV FileStorage YAML file: {_cv_message(err)}") from None
+        raise FileFormatError(path, "", f"is not an OpenCV FileStorage {kind} file: {_cv_message(err)}") from None
     try:
         if not fs.isOpened():
-            raise FileFormatError(path, "", "is not an OpenCV FileStorage YAML file")
+            raise FileFormatError(path, "", f"is not an OpenCV FileStorage {kind} file")
         value = _filenode_value(fs.root(), path)
     except (cv2.error, SystemError, UnicodeError) as err:
-        raise FileFormatError(path, "", f"is not a usable OpenCV FileStorage YAML file: {_cv_message(err)}") from None
+        raise FileFormatError(path, "", f"is not a usable OpenCV FileStorage {kind} file: {_cv_message(err)}") from None
     finally:
         fs.release()
     return Node(value, path)
@@ -464,7 +478,8 @@ def _rig_from_yaml_text(text: str, path) -> CalibratedRig:
 
 
 def load_opencv_yaml(path: str | Path) -> CalibratedRig:
-    """Read back a YAML written by :func:`export_opencv_yaml` (OpenCV ``FileStorage``), validated.
+    """Read back a YAML (or, by its ``.xml`` suffix, an XML) written by :func:`export_opencv_yaml` (OpenCV
+    ``FileStorage``), validated.
 
     Every key the rig is built from is required (``format``, ``model``, ``image_width``, ``image_height``,
     ``{left,right}_{tilt_model, fx, ..., p2}``, ``R``, ``T``); ``K1``/``D1``/``K2``/``D2`` are optional but must
