@@ -25,6 +25,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from scenes import _checks
+
 #: The cameras of a stereo rig a drift can apply to.
 CAMERAS = ("left", "right")
 
@@ -62,12 +64,12 @@ class CameraDrift:
 
     def translation_mm(self, state_index: int) -> np.ndarray:
         """Camera-centre motion ``d`` (3,) at state ``k``, mm, state-0 camera frame: ``k * translation``."""
-        k = _check_state_index(state_index)
+        k = _checks.state_index(state_index)
         return k * 1e-3 * np.asarray(self.translation_um_per_state)
 
     def rotation_vector_rad(self, state_index: int) -> np.ndarray:
         """Rotation vector ``w`` (3,) of the camera at state ``k``, rad, state-0 camera frame."""
-        k = _check_state_index(state_index)
+        k = _checks.state_index(state_index)
         return k * 1e-6 * np.asarray(self.rotation_urad_per_state)
 
 
@@ -110,7 +112,7 @@ def drifted_pose(R_cam_from_world, t_cam_from_world_mm, drift: CameraDrift | Non
         raise ValueError(f"R_cam_from_world must be a finite (3, 3) matrix, got shape {R.shape}")
     if t.shape != (3,) or not np.all(np.isfinite(t)):
         raise ValueError(f"t_cam_from_world_mm must be a finite 3-vector, got shape {t.shape}")
-    k = _check_state_index(state_index)
+    k = _checks.state_index(state_index)
     if camera is not None:
         _check_camera(camera, "camera")
     if drift is None or drift.is_zero or k == 0 or (camera is not None and camera != drift.camera):
@@ -159,9 +161,3 @@ def _finite_vector(name: str, value) -> tuple[float, float, float]:
     if v.shape != (3,) or not np.all(np.isfinite(v)):
         raise ValueError(f"{name} must be a finite 3-vector, got {value!r}")
     return tuple(float(x) for x in v)                # a tuple keeps the frozen dataclass hashable and JSON-able
-
-
-def _check_state_index(state_index) -> int:
-    if isinstance(state_index, bool) or not isinstance(state_index, (int, np.integer)) or state_index < 0:
-        raise ValueError(f"state_index must be an integer >= 0, got {state_index!r}")
-    return int(state_index)

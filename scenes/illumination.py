@@ -30,6 +30,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from scenes import _checks
+
 
 @dataclass(frozen=True)
 class IlluminationChange:
@@ -58,7 +60,7 @@ class IlluminationChange:
 
     def __post_init__(self):
         for name in ("gain_per_state", "offset_grey_per_state", "gradient_per_state", "gradient_angle_deg"):
-            object.__setattr__(self, name, _finite_float(name, getattr(self, name)))
+            object.__setattr__(self, name, _checks.finite_float(name, getattr(self, name)))
 
     @property
     def is_zero(self) -> bool:
@@ -70,7 +72,7 @@ class IlluminationChange:
 
         Arguments as for :meth:`apply`; ``shape_hw`` is the (height, width) of the image or crop.
         """
-        k = _check_state_index(state_index)
+        k = _checks.state_index(state_index)
         x0, y0, W, H = _window(shape_hw, crop, sensor_size_px)
         h, w = shape_hw
         phi = np.radians(self.gradient_angle_deg)
@@ -102,7 +104,7 @@ class IlluminationChange:
         (H, W) float64, grey levels: ``max(0, I * gain_map + k * offset_grey_per_state)``.
         """
         image = _check_image(image_grey)
-        k = _check_state_index(state_index)
+        k = _checks.state_index(state_index)
         factor = self.gain_map(k, image.shape, crop, sensor_size_px)   # also validates crop and sensor size
         if k == 0 or self.is_zero:
             return image.copy()
@@ -155,21 +157,3 @@ def _check_image(image_grey) -> np.ndarray:
     if not np.all(np.isfinite(image)):
         raise ValueError(f"image_grey has {np.count_nonzero(~np.isfinite(image))} non-finite pixels")
     return image
-
-
-def _finite_float(name: str, value) -> float:
-    if isinstance(value, bool):
-        raise ValueError(f"{name} must be a finite number, got {value!r}")
-    try:
-        out = float(value)
-    except (TypeError, ValueError):
-        raise ValueError(f"{name} must be a finite number, got {value!r}") from None
-    if not np.isfinite(out):
-        raise ValueError(f"{name} must be a finite number, got {value!r}")
-    return out
-
-
-def _check_state_index(state_index) -> int:
-    if isinstance(state_index, bool) or not isinstance(state_index, (int, np.integer)) or state_index < 0:
-        raise ValueError(f"state_index must be an integer >= 0, got {state_index!r}")
-    return int(state_index)

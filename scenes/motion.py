@@ -18,6 +18,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from scenes import _checks
+
 #: "Up" in the left image: -y of the left camera (= world) frame.
 STAGE_UP_WORLD = np.array([0.0, -1.0, 0.0])
 
@@ -134,7 +136,7 @@ class StageErrors:
                    "straightness_random_um": self.straightness_random_um, "travel_mm": self.travel_mm,
                    "axis_tilt_deg": self.axis_tilt_deg}
         for name, value in scalars.items():
-            object.__setattr__(self, name, _finite_float(name, value))
+            object.__setattr__(self, name, _checks.finite_float(name, value))
         if not self.scale_error > -1:
             raise ValueError(f"scale_error must be > -1 (the stage must move forwards), got {self.scale_error}")
         if self.straightness_random_um < 0:
@@ -283,18 +285,6 @@ def stage_fields(R_world_from_specimen, states_mm, direction_world=STAGE_UP_WORL
 
 
 # ------------------------------------------------------------------------------------------------------------
-def _finite_float(name: str, value) -> float:
-    if isinstance(value, bool):
-        raise ValueError(f"{name} must be a finite number, got {value!r}")
-    try:
-        out = float(value)
-    except (TypeError, ValueError):
-        raise ValueError(f"{name} must be a finite number, got {value!r}") from None
-    if not np.isfinite(out):
-        raise ValueError(f"{name} must be a finite number, got {value!r}")
-    return out
-
-
 def _nonzero_vector(name: str, value) -> tuple[float, float, float]:
     try:
         v = np.asarray(value, dtype=float)

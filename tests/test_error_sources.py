@@ -46,9 +46,7 @@ def _measured(scenario, instrument, store):
     truth = load_truth(images)
     m = measure_rigid_motion(truth, images, rig, subset_size=instrument.subset_px, step=instrument.step_px,
                              progress=False)
-    pixels = np.column_stack([m["shape"].x, m["shape"].y]).astype(float)
-    _, X_true = truth.points_of_interest(pixels)
-    return m, truth, X_true, rig
+    return m, truth, m["X_true_mm"], rig
 
 
 def test_a_half_percent_print_scale_error_scales_every_triangulated_length_by_its_inverse(store):

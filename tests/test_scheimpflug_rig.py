@@ -3,7 +3,6 @@ import numpy as np
 import pytest
 from dataclasses import replace
 
-from scenes.truth import defocus_blur_px, in_focus_points_world_mm
 from workbench.experiments.checkerboard_views import sensor_spec_for
 from workbench.experiments.rigid_motion_scenes import face_blur_px, specimen_reference_pose
 from workbench.rigs import (facing_plane_world, get_rig, paper_rig, scheimpflug_rig, scheimpflug_tilt_for_plane)

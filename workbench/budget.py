@@ -80,7 +80,7 @@ def budget_study(base: Study, metric: str) -> Study:
     return dataclasses.replace(base, mode="cases", cases=cases, metrics=(metric,))
 
 
-def parse_at(text: str | None, base: Study, metric: str) -> tuple[str, float] | None:
+def parse_at(text: str | None) -> tuple[str, float] | None:
     """``--at DIM=VALUE`` as ``(dim, value)``."""
     if text is None:
         return None

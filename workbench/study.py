@@ -35,7 +35,7 @@ import itertools
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from workbench.config import ConfigError, from_dict, get_value, parameter_paths, read_mapping, with_value
+from workbench.config import ConfigError, from_dict, get_value, read_mapping, with_value
 from workbench.scenario import Instrument, Scenario, case_hash
 
 STUDY_KEYS = {"name", "description", "repeats", "seeds", "mode", "metrics"}
@@ -260,11 +260,4 @@ def check_cases(study: Study) -> None:
             raise ConfigError(f"{study.source}: case {labels or 'base'}: {err}") from None
 
 
-def sweepable_parameters() -> list[str]:
-    """Every parameter a study may set (``workbench parameters`` prints them with their documentation)."""
-    return ([f"scenario.{p}" for p in parameter_paths(Scenario)]
-            + [f"instrument.{p}" for p in parameter_paths(Instrument)])
-
-
-__all__ = ["Axis", "Case", "CaseSpec", "Study", "apply_assignments", "get_value", "load_study", "parse_study",
-           "sweepable_parameters"]
+__all__ = ["Axis", "Case", "CaseSpec", "Study", "apply_assignments", "get_value", "load_study", "parse_study"]

@@ -169,30 +169,6 @@ def _run_payload(payload: dict) -> dict:
     return run_case_record(payload)
 
 
-def run_serial(study: Study, out_dir: str | Path, *, store: DatasetStore | None = None) -> SweepSummary:
-    """The same as :func:`run_sweep` in this process, without Dask (for debugging a single case)."""
-    from workbench.cases import run_case_record
-
-    out_dir = Path(out_dir)
-    cases_dir = out_dir / "cases"
-    cases_dir.mkdir(parents=True, exist_ok=True)
-    store = store or DatasetStore()
-    cases = study.expand()
-    done = finished_records(cases_dir, [c.hash for c in cases])
-    start = time.perf_counter()
-    records, failed = list(done.values()), 0
-    for case in cases:
-        if case.hash in done:
-            continue
-        record = run_case_record(case_payload(case, store, cases_dir, "serial"))
-        if record["status"] == "ok":
-            records.append(record)
-        else:
-            failed += 1
-    return SweepSummary(len(cases), len(done), len(cases) - len(done) - failed, failed, time.perf_counter() - start,
-                        out_dir, records)
-
-
 def environment_versions() -> dict:
     """Versions recorded with every study result."""
     import platform

@@ -96,7 +96,7 @@ def budget_command(args) -> int:
 
     base = load_study(args.study)
     study = budget_study(base, args.metric)          # checks the [budget] table and the metric
-    at = parse_at(args.at, base, args.metric)
+    at = parse_at(args.at)
     summary, lines, versions = _run(args, study, copy_of=base)
     result = write_budget(study, args.out, summary.records, args.metric, at, lines, versions)
     print("\n".join(lines))

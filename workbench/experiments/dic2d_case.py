@@ -97,15 +97,15 @@ def _exact_gradient_x(image: np.ndarray) -> np.ndarray:
     return np.real(np.fft.ifft(spectrum * kx[None, :], axis=1))
 
 
-def noise_sigma_grey(scenario: Scenario, mean_grey: float) -> float:
-    """Total per-pixel noise std (grey) of one image: read, mean shot and quantisation noise."""
+def image_noise_sigma_grey(scenario: Scenario, clean_image: np.ndarray) -> float:
+    """RMS per-pixel noise std (grey) of one image: read, shot and quantisation noise
+    (:func:`scenes.noise.noise_sigma_grey`, the prediction of the noise the image was given)."""
+    from scenes.noise import noise_sigma_grey
+
     r = scenario.render
-    var = r.read_noise_grey ** 2
-    if r.electrons_per_grey is not None:
-        var += mean_grey / r.electrons_per_grey
-    if r.bit_depth:
-        var += 1.0 / 12.0
-    return float(np.sqrt(var))
+    sigma = noise_sigma_grey(np.maximum(clean_image, 0.0), r.read_noise_grey, r.electrons_per_grey,
+                             r.bit_depth or None)
+    return float(np.sqrt(np.mean(sigma ** 2)))
 
 
 def pan_floor_px(clean_reference: np.ndarray, x: np.ndarray, y: np.ndarray, subset_px: int, sigma_grey: float) -> np.ndarray:
@@ -160,10 +160,9 @@ def measure(scenario: Scenario, instrument: Instrument, folder: Path) -> dict:
     settings = DICSettings(subset_size=instrument.subset_px, step=instrument.step_px, order=instrument.shape_order,
                            interpolation=instrument.interpolation, lowpass_sigma_px=instrument.prefilter_sigma_px,
                            tolerance_px=1e-4)
+    check(scenario, instrument)
     n = truth["size_px"]
     margin = instrument.subset_px // 2 + 8
-    if n - 2 * margin < 1:
-        raise ValueError(f"image2d.size_px = {n} is too small for instrument.subset_px = {instrument.subset_px}")
     sx, sy = truth["shift_xy_px"]
     start = time.perf_counter()
     result = correlate(reference, deformed, settings, roi=(margin, margin, n - 1 - margin, n - 1 - margin),
@@ -177,7 +176,7 @@ def measure(scenario: Scenario, instrument: Instrument, folder: Path) -> dict:
     sel = ok & independent
     error = result.u - sx
     clean = read_grey(folder / truth["files"]["clean_reference"])
-    sigma = noise_sigma_grey(scenario, float(clean.mean()))
+    sigma = image_noise_sigma_grey(scenario, clean)
     pan = pan_floor_px(clean, result.x[sel], result.y[sel], instrument.subset_px, sigma)
     full = shape_function_floor_px(clean, result.x[sel], result.y[sel], instrument.subset_px, instrument.shape_order,
                                    sigma)

@@ -104,7 +104,7 @@ def measure_rigid_motion(truth, images: Path, rig: CalibratedRig, *, subset_size
 
     Returns ``rows`` (one per state >= 1: points, mean/std of the error of D against the true displacement,
     ``mean_D_mm`` and the residuals; a state that cannot be matched has ``error``), the ROI, the reference
-    shape, its triangulation errors against the truth (µm, unaligned and after one rigid alignment) and the
+    shape, the true positions of its points in every state (``X_true_mm``, (K, N, 3)), its triangulation errors against the truth (µm, unaligned and after one rigid alignment) and the
     DIC noise floor figures. ``points_dir``: also write per-point CSV/VTK files there.
     """
     settings = DICSettings(subset_size=subset_size, step=step, order=order, interpolation=interpolation,
@@ -160,7 +160,7 @@ def measure_rigid_motion(truth, images: Path, rig: CalibratedRig, *, subset_size
                      # the mean vector error shows a bias that |U| (always >= 0) hides near zero displacement
                      "mean_U_error_um": (1e3 * np.mean(state.U_mm[ok] @ R_al.T - (X_true[k] - X_true[0])[ok],
                                                        axis=0)).tolist()})
-    return {"rows": rows, "roi": roi, "shape": shape, "ok0": ok0, "unaligned_um": 1e3 * unaligned,
+    return {"rows": rows, "roi": roi, "shape": shape, "X_true_mm": X_true, "ok0": ok0, "unaligned_um": 1e3 * unaligned,
             "aligned_um": 1e3 * aligned, "noise_grey": noise_grey, "sigma_px": sigma_px, "footprint_mm": footprint_mm}
 
 

@@ -90,12 +90,15 @@ def render_calibration_views(scenario: Scenario, folder: Path) -> None:
 
 
 def states_mm(scenario: Scenario) -> np.ndarray:
+    """The stage readings of the scenario: out to ``max_mm`` (and back with ``return_to_zero``)."""
+    from scenes.motion import stage_states_mm
+
     m = scenario.motion
-    n = round(m.max_mm / m.step_mm)
-    if n < 1 or abs(n * m.step_mm - m.max_mm) > 1e-9 * m.max_mm:
-        raise ValueError(f"scenario.motion.max_mm = {m.max_mm} must be a whole number of steps of {m.step_mm} mm")
-    up = np.arange(n + 1) * m.step_mm
-    return np.concatenate([up, up[-2::-1]]) if m.return_to_zero else up
+    try:
+        out_and_back = stage_states_mm(m.max_mm, m.step_mm)
+    except ValueError as err:
+        raise ValueError(f"scenario.motion.{err}") from None
+    return out_and_back if m.return_to_zero else out_and_back[: len(out_and_back) // 2 + 1]
 
 
 def render_states(scenario: Scenario, folder: Path) -> None:
@@ -193,8 +196,7 @@ def run(scenario: Scenario, instrument: Instrument, store) -> dict:
                              order=instrument.shape_order, interpolation=instrument.interpolation,
                              lowpass_sigma_px=instrument.prefilter_sigma_px, progress=False)
     rows = m["rows"]
-    ref_pts, true_pts = m["shape"].X_mm[m["ok0"]], truth.points_of_interest(
-        np.column_stack([m["shape"].x, m["shape"].y]).astype(float))[1][0][m["ok0"]]
+    ref_pts, true_pts = m["shape"].X_mm[m["ok0"]], m["X_true_mm"][0][m["ok0"]]
     # the scale of the reconstruction: least-squares ratio of the spread of the measured points to the truth's
     spread = lambda X: np.sqrt(np.mean(np.sum((X - X.mean(0)) ** 2, axis=1)))  # noqa: E731
     scale_error = float(spread(ref_pts) / spread(true_pts) - 1.0)
