@@ -445,6 +445,8 @@ def _parser() -> argparse.ArgumentParser:
             sw.add_argument("--metric", required=True, help="the metric whose budget is drawn")
             sw.add_argument("--at", default=None,
                             help="for a metric over a dimension (e.g. stage_mm), the value to take: DIM=VALUE")
+    from workbench.tool_cli import add_parsers as _tool_parsers
+    _tool_parsers(sub, _positive_int)
     sub.add_parser("parameters", help="list every scenario.* and instrument.* parameter with its default and doc")
     cal_files = sub.add_parser("calibration", help="calibration files: convert between formats")
     cal_sub = cal_files.add_subparsers(dest="what", required=True)
@@ -828,6 +830,16 @@ def _calibration_convert(args) -> int:
     return 0
 
 
+def _export(args) -> int:
+    from workbench.tool_cli import export_command
+    return export_command(args)
+
+
+def _score(args) -> int:
+    from workbench.tool_cli import score_command
+    return score_command(args)
+
+
 def _parameters(args) -> int:
     from workbench.sweep_cli import parameters_command
     return parameters_command(args)
@@ -884,7 +896,9 @@ def main(argv: list[str] | None = None) -> int:
                 ("reproduce", "fig6-causes"): _fig6_causes,
                 ("budget", None): _budget,
                 ("parameters", None): _parameters,
-                ("calibration", "convert"): _calibration_convert}
+                ("calibration", "convert"): _calibration_convert,
+                ("export", None): _export,
+                ("score", None): _score}
     where = " ".join(filter(None, ("workbench", args.command, getattr(args, "what", None))))
     try:
         with _one_line_warnings(where):

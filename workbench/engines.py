@@ -1,0 +1,115 @@
+"""Run any 2-D DIC engine on a dataset: a command line (as the DIC Challenge scripts do) or a Python function.
+
+* **Command template**: ``'mytool {ref} {def} --subset {subset} --out {out}'`` — run without a shell (the
+  template is split like a POSIX shell would, then each placeholder is replaced), once per deformed state.
+  Placeholders: ``{ref}``, ``{def}`` (image files), ``{out}`` (the result file it must write), ``{subset}``,
+  ``{step}`` (px), ``{roi}`` (``x0,y0,x1,y1``, inclusive pixel bounds of subset centres), ``{x0} {y0} {x1} {y1}``.
+* **Python entry point**: ``'package.module:function'``, called as
+  ``function(ref, def, out, subset_px=.., step_px=.., roi_xyxy_px=(..), **options)`` and writing ``out``;
+  the module may say which reader reads it (``RESULT_FORMAT = "pyvale"``).
+
+The engine sees image files only (as with a real rig); the result is read by :mod:`workbench.results` and
+scored by :mod:`workbench.scoring`. An engine that fails, or writes no result file, is an error naming the
+state and the command.
+"""
+from __future__ import annotations
+
+import importlib
+import re
+import shlex
+import subprocess
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+PLACEHOLDERS = ("ref", "def", "out", "subset", "step", "roi", "x0", "y0", "x1", "y1")
+_PY_ENTRY = re.compile(r"^[A-Za-z_][\w.]*:[A-Za-z_]\w*$")
+
+
+@dataclass(frozen=True)
+class Engine:
+    """A DIC engine: ``kind`` is ``"command"`` or ``"python"``; ``spec`` the template or ``module:function``."""
+
+    kind: str
+    spec: str
+
+    @property
+    def result_format(self) -> str | None:
+        """The reader its module names (``RESULT_FORMAT``), for a Python engine; else None."""
+        if self.kind != "python":
+            return None
+        return getattr(importlib.import_module(self.spec.split(":")[0]), "RESULT_FORMAT", None)
+
+
+def parse_engine(text: str) -> Engine:
+    """``module:function`` -> a Python engine; anything with a space or a placeholder -> a command template."""
+    text = text.strip()
+    if _PY_ENTRY.match(text):
+        return Engine("python", text)
+    try:
+        words = shlex.split(text)
+    except ValueError as err:
+        raise ValueError(f"--engine {text!r}: {err}") from None
+    if not words:
+        raise ValueError("--engine is empty")
+    found = set(re.findall(r"\{(\w+)\}", text))
+    unknown = found - set(PLACEHOLDERS)
+    if unknown:
+        raise ValueError(f"--engine {text!r}: unknown placeholder(s) {', '.join('{' + u + '}' for u in sorted(unknown))}; "
+                         f"known: {', '.join('{' + p + '}' for p in PLACEHOLDERS)}")
+    for need in ("ref", "def", "out"):
+        if need not in found:
+            raise ValueError(f"--engine {text!r}: the template needs {{{need}}}")
+    return Engine("command", text)
+
+
+def run_engine(engine: Engine, ref: Path, deformed: Path, out: Path, *, subset_px: int, step_px: int,
+               roi_xyxy_px: tuple[int, int, int, int], timeout_s: float | None = None, options: dict | None = None
+               ) -> dict:
+    """Run ``engine`` on one pair; returns ``{"seconds", "command"}``. Raises RuntimeError when it fails."""
+    out.parent.mkdir(parents=True, exist_ok=True)
+    if out.exists():
+        out.unlink()
+    start = time.perf_counter()
+    if engine.kind == "python":
+        module_name, func_name = engine.spec.split(":")
+        try:
+            func = getattr(importlib.import_module(module_name), func_name)
+        except (ImportError, AttributeError) as err:
+            raise ValueError(f"--engine {engine.spec}: {err}") from None
+        func(str(ref), str(deformed), str(out), subset_px=subset_px, step_px=step_px, roi_xyxy_px=tuple(roi_xyxy_px),
+             **(options or {}))
+        command = engine.spec
+    else:
+        values = {"ref": str(ref), "def": str(deformed), "out": str(out), "subset": str(subset_px),
+                  "step": str(step_px), "roi": ",".join(str(int(v)) for v in roi_xyxy_px),
+                  **{k: str(int(v)) for k, v in zip(("x0", "y0", "x1", "y1"), roi_xyxy_px)}}
+        argv = [re.sub(r"\{(\w+)\}", lambda m: values[m.group(1)], w) for w in shlex.split(engine.spec)]
+        command = shlex.join(argv)
+        try:
+            proc = subprocess.run(argv, capture_output=True, text=True, timeout=timeout_s)
+        except FileNotFoundError:
+            raise ValueError(f"--engine: no such program {argv[0]!r}") from None
+        except subprocess.TimeoutExpired:
+            raise RuntimeError(f"engine timed out after {timeout_s} s: {command}") from None
+        if proc.returncode != 0:
+            tail = (proc.stderr or proc.stdout).strip().splitlines()[-5:]
+            raise RuntimeError(f"engine exited with {proc.returncode}: {command}\n  " + "\n  ".join(tail))
+    if not out.is_file():
+        raise RuntimeError(f"engine wrote no result file {out}: {command}")
+    return {"seconds": time.perf_counter() - start, "command": command}
+
+
+def ours(ref: str, deformed: str, out: str, *, subset_px: int = 33, step_px: int = 8, roi_xyxy_px=None,
+         order: int = 1, interpolation: str = "biquintic", **_options) -> Path:
+    """This project's instrument as a Python engine (native CSV): the reference the interface is checked with."""
+    from measurement.dic import DICSettings, correlate
+    from measurement.image_io import read_grey
+
+    settings = DICSettings(subset_size=subset_px, step=step_px, order=order, interpolation=interpolation)
+    result = correlate(read_grey(ref).astype(float), read_grey(deformed).astype(float), settings,
+                       roi=None if roi_xyxy_px is None else tuple(int(v) for v in roi_xyxy_px))
+    return result.to_csv(out)
+
+
+RESULT_FORMAT = "native"     # of :func:`ours`

@@ -1,0 +1,245 @@
+"""Result files of DIC tools, read into one table in this project's conventions (:class:`ToolResult`).
+
+Readers (``READERS``):
+
+* ``native``: this project's ``workbench dic`` CSV (``x, y, u, v, …, status_name``) or stereo state CSV
+  (``x, y, X, Y, Z, U, V, W, …, status_name``, :mod:`measurement.stereo_io`);
+* ``dice``: DICe's solution text (``DICe_solution_*.txt``): comma-separated, optional ``***`` header lines,
+  then ``SUBSET_ID, COORDINATE_X, COORDINATE_Y, DISPLACEMENT_X, DISPLACEMENT_Y, SIGMA, GAMMA, BETA,
+  STATUS_FLAG, …``; stereo runs add ``MODEL_COORDINATES_X/Y/Z`` and ``MODEL_DISPLACEMENT_X/Y/Z`` (mm, in
+  DICe's model frame: camera 0 unless a best-fit plane was asked for). A point DICe could not correlate has
+  ``SIGMA = -1``;
+* ``pyvale``: pyvale's 2-D DIC CSV (:mod:`workbench.peers.pyvale_engine`);
+* ``csv``: any CSV by a column mapping ``x=..,y=..,u=..,v=..`` (and ``X,Y,Z,U,V,W`` for 3-D, ``valid`` for a
+  0/1 or true/false column), with the tool's pixel origin and length unit stated.
+
+Conventions after reading: x = column, y = row of the LEFT REFERENCE image with pixel centres at integer
+coordinates (OpenCV); 2-D displacement in px (deformed minus reference position); 3-D positions and
+displacements in mm in the tool's frame (``frame`` says which; scoring aligns it, :mod:`workbench.scoring`).
+"""
+from __future__ import annotations
+
+import csv
+import re
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+READERS = ("native", "dice", "pyvale", "csv")
+#: Pixel-coordinate conventions of tools: what to add to their x, y to get OpenCV's (integer pixel centres).
+PIXEL_ORIGINS = {"center": 0.0, "corner": -0.5, "one-based": -1.0}
+#: Length units of 3-D columns, in mm.
+LENGTH_UNITS_MM = {"mm": 1.0, "um": 1e-3, "m": 1e3}
+#: Columns a mapping may name.
+MAPPABLE = ("x", "y", "u", "v", "X", "Y", "Z", "U", "V", "W", "valid")
+
+
+class ResultFormatError(ValueError):
+    """A result file that cannot be read as asked (the message names the file and the column)."""
+
+
+@dataclass(frozen=True)
+class ToolResult:
+    """One tool's result for one state (reference -> that state), in this project's conventions.
+
+    Attributes
+    ----------
+    source : Path
+    tool : str
+    x_px, y_px : (N,) float, reference positions in the left reference image
+    valid : (N,) bool, the tool reports a number it trusts
+    u_px, v_px : (N,) float or None, 2-D displacement (NaN where not valid)
+    X_mm : (N, 3) float or None, 3-D position in the deformed state, the tool's frame
+    U_mm : (N, 3) float or None, 3-D displacement, the tool's frame
+    frame : str, the frame of X_mm / U_mm as the tool states it (``"left camera"`` for ours and DICe's default)
+    """
+
+    source: Path
+    tool: str
+    x_px: np.ndarray
+    y_px: np.ndarray
+    valid: np.ndarray
+    u_px: np.ndarray | None = None
+    v_px: np.ndarray | None = None
+    X_mm: np.ndarray | None = None
+    U_mm: np.ndarray | None = None
+    frame: str = "left camera"
+
+    @property
+    def has_2d(self) -> bool:
+        return self.u_px is not None
+
+    @property
+    def has_3d(self) -> bool:
+        return self.U_mm is not None
+
+
+def _rows(path: Path, skip_prefixes=("#", "*")) -> tuple[list[str], list[list[str]]]:
+    """Header and rows of a CSV (comma, semicolon or whitespace separated), skipping comment/banner lines."""
+    try:
+        text = path.read_text(errors="strict")
+    except UnicodeDecodeError:
+        raise ResultFormatError(f"{path}: not a text file") from None
+    lines = [ln for ln in text.splitlines() if ln.strip() and not ln.lstrip().startswith(skip_prefixes)]
+    if not lines:
+        raise ResultFormatError(f"{path}: no header line and no data")
+    sample = lines[0]
+    delimiter = "," if "," in sample else (";" if ";" in sample else None)
+    if delimiter is None:
+        table = [ln.split() for ln in lines]
+    else:
+        table = [[c.strip() for c in row] for row in csv.reader(lines, delimiter=delimiter)]
+    header, rows = table[0], table[1:]
+    bad = [i + 2 for i, r in enumerate(rows) if len(r) != len(header)]
+    if bad:
+        raise ResultFormatError(f"{path}: line {bad[0]} has a different number of fields than the header "
+                                f"({len(header)}: {', '.join(header[:6])}…)")
+    return header, rows
+
+
+def _column(path: Path, header: list[str], rows, name: str, *, what: str | None = None) -> np.ndarray:
+    if name not in header:
+        raise ResultFormatError(f"{path}: no column {name!r}{f' ({what})' if what else ''}; the columns are "
+                                f"{', '.join(header)}")
+    j = header.index(name)
+    out = np.empty(len(rows))
+    for i, row in enumerate(rows):
+        try:
+            out[i] = float(row[j])
+        except ValueError:
+            raise ResultFormatError(f"{path}: column {name!r}, data row {i + 1}: {row[j]!r} is not a number") from None
+    return out
+
+
+def read_native(path: Path) -> ToolResult:
+    """This project's 2-D (``workbench dic``) or stereo state CSV."""
+    header, rows = _rows(path)
+    col = lambda n: _column(path, header, rows, n)  # noqa: E731
+    names = [r[header.index("status_name")] for r in rows] if "status_name" in header else None
+    x, y = col("x"), col("y")
+    if "U" in header:
+        X = np.column_stack([col("X"), col("Y"), col("Z")])
+        U = np.column_stack([col("U"), col("V"), col("W")])
+        valid = np.all(np.isfinite(U), axis=1)
+        if names is not None:
+            valid &= np.array([n == "converged" for n in names])
+        return ToolResult(path, "scheimpflug-dic-workbench", x, y, valid, X_mm=X, U_mm=U)
+    u, v = col("u"), col("v")
+    valid = np.isfinite(u) & np.isfinite(v)
+    if names is not None:
+        valid &= np.array([n == "converged" for n in names])
+    return ToolResult(path, "scheimpflug-dic-workbench", x, y, valid, u, v)
+
+
+def read_dice(path: Path) -> ToolResult:
+    """A DICe solution file (2-D, or stereo with MODEL_* columns)."""
+    header, rows = _rows(path)
+    header = [h.upper() for h in header]
+    col = lambda n, what=None: _column(path, header, rows, n, what=what)  # noqa: E731
+    x, y = col("COORDINATE_X"), col("COORDINATE_Y")
+    u, v = col("DISPLACEMENT_X"), col("DISPLACEMENT_Y")
+    valid = np.isfinite(u) & np.isfinite(v)
+    if "SIGMA" in header:
+        valid &= col("SIGMA") >= 0.0          # DICe marks a point it could not correlate with SIGMA = -1
+    u, v = np.where(valid, u, np.nan), np.where(valid, v, np.nan)
+    X = U = None
+    if "MODEL_DISPLACEMENT_X" in header:
+        X = np.column_stack([col(f"MODEL_COORDINATES_{a}", "stereo position") for a in "XYZ"])
+        U = np.column_stack([col(f"MODEL_DISPLACEMENT_{a}", "stereo displacement") for a in "XYZ"])
+        X = X + U                              # MODEL_COORDINATES are the reference positions
+        X[~valid], U[~valid] = np.nan, np.nan
+    return ToolResult(path, "DICe", x, y, valid, u, v, X, U, frame="DICe model frame (camera 0)")
+
+
+def read_pyvale(path: Path) -> ToolResult:
+    from workbench.peers.pyvale_engine import read_result
+
+    r = read_result(path)
+    valid = np.asarray(r["valid"], bool)
+    return ToolResult(path, r.get("tool", "pyvale"), np.asarray(r["x_px"], float), np.asarray(r["y_px"], float), valid,
+                      np.where(valid, r["u_px"], np.nan), np.where(valid, r["v_px"], np.nan))
+
+
+def parse_columns(text: str) -> dict[str, str]:
+    """``"x=col_x,y=col_y,u=disp_x"`` -> ``{"x": "col_x", ...}``; names must be in :data:`MAPPABLE`."""
+    mapping = {}
+    for item in filter(None, (s.strip() for s in text.split(","))):
+        key, sep, value = item.partition("=")
+        key, value = key.strip(), value.strip()
+        if not sep or not value:
+            raise ValueError(f"--columns {text!r}: {item!r} is not NAME=COLUMN")
+        if key not in MAPPABLE:
+            raise ValueError(f"--columns: {key!r} is not one of {', '.join(MAPPABLE)}")
+        if key in mapping:
+            raise ValueError(f"--columns: {key!r} is given twice")
+        mapping[key] = value
+    for need in ("x", "y"):
+        if need not in mapping:
+            raise ValueError(f"--columns {text!r}: names no {need} column (the reference position)")
+    has2 = "u" in mapping and "v" in mapping
+    has3 = all(k in mapping for k in "UVW")
+    if not (has2 or has3):
+        raise ValueError(f"--columns {text!r}: name u and v (2-D displacement, px) or U, V, W (3-D, the length unit)")
+    if any(k in mapping for k in "XYZ") and not all(k in mapping for k in "XYZ"):
+        raise ValueError("--columns: name all of X, Y, Z or none")
+    return mapping
+
+
+def read_mapped_csv(path: Path, columns: dict[str, str], pixel_origin: str = "center",
+                    length_unit: str = "mm") -> ToolResult:
+    """Any CSV by a column mapping (:func:`parse_columns`), converted from the stated conventions."""
+    if pixel_origin not in PIXEL_ORIGINS:
+        raise ValueError(f"--pixel-origin {pixel_origin!r}: choose one of {', '.join(PIXEL_ORIGINS)}")
+    if length_unit not in LENGTH_UNITS_MM:
+        raise ValueError(f"--length-unit {length_unit!r}: choose one of {', '.join(LENGTH_UNITS_MM)}")
+    header, rows = _rows(path)
+    col = lambda k: _column(path, header, rows, columns[k], what=f"mapped to {k}")  # noqa: E731
+    shift = PIXEL_ORIGINS[pixel_origin]
+    x, y = col("x") + shift, col("y") + shift
+    valid = np.ones(x.size, bool)
+    if "valid" in columns:
+        j = header.index(columns["valid"]) if columns["valid"] in header else None
+        if j is None:
+            raise ResultFormatError(f"{path}: no column {columns['valid']!r} (mapped to valid)")
+        words = {"1": True, "true": True, "yes": True, "0": False, "false": False, "no": False}
+        try:
+            valid = np.array([words[r[j].strip().lower()] for r in rows], bool)
+        except KeyError as err:
+            raise ResultFormatError(f"{path}: column {columns['valid']!r} holds {err.args[0]!r}, not 0/1 or "
+                                    "true/false") from None
+    u = v = X = U = None
+    if "u" in columns:
+        u, v = col("u"), col("v")
+        valid &= np.isfinite(u) & np.isfinite(v)
+    if "U" in columns:
+        scale = LENGTH_UNITS_MM[length_unit]
+        U = np.column_stack([col(k) for k in "UVW"]) * scale
+        valid &= np.all(np.isfinite(U), axis=1)
+        if "X" in columns:
+            X = np.column_stack([col(k) for k in "XYZ"]) * scale
+    nanify = lambda a: None if a is None else np.where(valid if a.ndim == 1 else valid[:, None], a, np.nan)  # noqa: E731
+    return ToolResult(path, "csv", x, y, valid, nanify(u), nanify(v), nanify(X), nanify(U), frame="as the tool states")
+
+
+def read_result(path: str | Path, fmt: str = "native", columns: str | None = None, pixel_origin: str = "center",
+                length_unit: str = "mm") -> ToolResult:
+    """Read one result file in ``fmt`` (one of :data:`READERS`)."""
+    path = Path(path)
+    if fmt not in READERS:
+        raise ValueError(f"--format {fmt!r}: choose one of {', '.join(READERS)}")
+    if not path.is_file():
+        raise ValueError(f"result file not found: {path}")
+    if fmt != "csv" and columns:
+        raise ValueError(f"--columns is for --format csv, not {fmt}")
+    if fmt == "csv":
+        if not columns:
+            raise ValueError("--format csv needs --columns x=..,y=..,u=..,v=.. (or U=..,V=..,W=..)")
+        return read_mapped_csv(path, parse_columns(columns), pixel_origin, length_unit)
+    return {"native": read_native, "dice": read_dice, "pyvale": read_pyvale}[fmt](path)
+
+
+def state_of(path: Path) -> int | None:
+    """The state number a file name ends with (``DICe_solution_03.txt`` -> 3), or None."""
+    m = re.search(r"(\d+)\D*$", path.stem)
+    return int(m.group(1)) if m else None
