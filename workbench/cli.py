@@ -447,6 +447,8 @@ def _parser() -> argparse.ArgumentParser:
                             help="for a metric over a dimension (e.g. stage_mm), the value to take: DIM=VALUE")
     from workbench.tool_cli import add_parsers as _tool_parsers
     _tool_parsers(sub, _positive_int)
+    from workbench.tool_cli import add_gate_parser as _gate_parser
+    _gate_parser(sub)
     sub.add_parser("parameters", help="list every scenario.* and instrument.* parameter with its default and doc")
     cal_files = sub.add_parser("calibration", help="calibration files: convert between formats")
     cal_sub = cal_files.add_subparsers(dest="what", required=True)
@@ -840,6 +842,11 @@ def _score(args) -> int:
     return score_command(args)
 
 
+def _gate(args) -> int:
+    from workbench.tool_cli import gate_command
+    return gate_command(args)
+
+
 def _parameters(args) -> int:
     from workbench.sweep_cli import parameters_command
     return parameters_command(args)
@@ -898,7 +905,8 @@ def main(argv: list[str] | None = None) -> int:
                 ("parameters", None): _parameters,
                 ("calibration", "convert"): _calibration_convert,
                 ("export", None): _export,
-                ("score", None): _score}
+                ("score", None): _score,
+                ("gate", None): _gate}
     where = " ".join(filter(None, ("workbench", args.command, getattr(args, "what", None))))
     try:
         with _one_line_warnings(where):
