@@ -226,3 +226,19 @@ def test_dice_export_is_a_complete_dice_input(pair, tmp_path):
         assert float(z["uv_left_px"][1, 50, 50, 0]) == pytest.approx(0.25)
     with pytest.raises(ValueError, match=r"the export folder exists and is not empty"):
         export_dataset(pair, "dice", out, log=lambda *_: None)
+
+
+def test_strain_columns_are_scored_against_the_exact_strain(pair, tmp_path):
+    """A translation has zero strain: strain columns of 100 µε in exx (and 0 elsewhere) score a bias of exactly
+    100 µε in xx and 0 in yy, xy."""
+    x, y = _grid(pair, 16)
+    pt = point_truth(pair, x, y)
+    path = tmp_path / "strain.csv"
+    with open(path, "w") as f:
+        f.write("x,y,u,v,exx,eyy,exy\n")
+        for i in range(x.size):
+            f.write(f"{x[i]:g},{y[i]:g},{pt.uv_left_px[1, i, 0]:.9g},{pt.uv_left_px[1, i, 1]:.9g},1e-4,0,0\n")
+    m = score_state(pair, 1, read_result(path, "csv", "x=x,y=y,u=u,v=v,exx=exx,eyy=eyy,exy=exy")).metrics
+    assert m["strain_bias_xx_microstrain"] == pytest.approx(100.0, abs=1e-6)
+    assert m["strain_rms_yy_microstrain"] == pytest.approx(0.0, abs=1e-6)
+    assert m["strain_rms_xy_microstrain"] == pytest.approx(0.0, abs=1e-6)

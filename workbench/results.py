@@ -11,7 +11,8 @@ Readers (``READERS``):
   ``SIGMA = -1``;
 * ``pyvale``: pyvale's 2-D DIC CSV (:mod:`workbench.peers.pyvale_engine`);
 * ``csv``: any CSV by a column mapping ``x=..,y=..,u=..,v=..`` (and ``X,Y,Z,U,V,W`` for 3-D, ``valid`` for a
-  0/1 or true/false column), with the tool's pixel origin and length unit stated.
+  0/1 or true/false column, ``exx, eyy, exy`` for 2-D Green-Lagrange strain with tensor shear), with the tool's
+  pixel origin and length unit stated.
 
 Conventions after reading: x = column, y = row of the LEFT REFERENCE image with pixel centres at integer
 coordinates (OpenCV); 2-D displacement in px (deformed minus reference position); 3-D positions and
@@ -32,7 +33,7 @@ PIXEL_ORIGINS = {"center": 0.0, "corner": -0.5, "one-based": -1.0}
 #: Length units of 3-D columns, in mm.
 LENGTH_UNITS_MM = {"mm": 1.0, "um": 1e-3, "m": 1e3}
 #: Columns a mapping may name.
-MAPPABLE = ("x", "y", "u", "v", "X", "Y", "Z", "U", "V", "W", "valid")
+MAPPABLE = ("x", "y", "u", "v", "X", "Y", "Z", "U", "V", "W", "exx", "eyy", "exy", "valid")
 
 
 class ResultFormatError(ValueError):
@@ -53,6 +54,8 @@ class ToolResult:
     X_mm : (N, 3) float or None, 3-D position in the deformed state, the tool's frame
     U_mm : (N, 3) float or None, 3-D displacement, the tool's frame
     frame : str, the frame of X_mm / U_mm as the tool states it (``"left camera"`` for ours and DICe's default)
+    strain : (N, 3) float or None, 2-D Green-Lagrange strain (exx, eyy, exy: tensor shear, not engineering) in
+        the left image's pixel axes
     """
 
     source: Path
@@ -65,6 +68,7 @@ class ToolResult:
     X_mm: np.ndarray | None = None
     U_mm: np.ndarray | None = None
     frame: str = "left camera"
+    strain: np.ndarray | None = None
 
     @property
     def has_2d(self) -> bool:
@@ -149,7 +153,13 @@ def read_dice(path: Path) -> ToolResult:
         U = np.column_stack([col(f"MODEL_DISPLACEMENT_{a}", "stereo displacement") for a in "XYZ"])
         X = X + U                              # MODEL_COORDINATES are the reference positions
         X[~valid], U[~valid] = np.nan, np.nan
-    return ToolResult(path, "DICe", x, y, valid, u, v, X, U, frame="DICe model frame (camera 0)")
+    strain = None
+    # DICe's virtual-strain-gauge post-processor; read as Green-Lagrange with tensor shear (an assumption to
+    # check against your DICe version: a tool writing engineering shear needs exy / 2)
+    if "VSG_STRAIN_XX" in header:
+        strain = np.column_stack([col(f"VSG_STRAIN_{c}", "strain") for c in ("XX", "YY", "XY")])
+        strain[~valid] = np.nan
+    return ToolResult(path, "DICe", x, y, valid, u, v, X, U, frame="DICe model frame (camera 0)", strain=strain)
 
 
 def read_pyvale(path: Path) -> ToolResult:
@@ -218,8 +228,14 @@ def read_mapped_csv(path: Path, columns: dict[str, str], pixel_origin: str = "ce
         valid &= np.all(np.isfinite(U), axis=1)
         if "X" in columns:
             X = np.column_stack([col(k) for k in "XYZ"]) * scale
+    strain = None
+    if any(k in columns for k in ("exx", "eyy", "exy")):
+        if not all(k in columns for k in ("exx", "eyy", "exy")):
+            raise ValueError("--columns: name all of exx, eyy, exy or none")
+        strain = np.column_stack([col(k) for k in ("exx", "eyy", "exy")])
     nanify = lambda a: None if a is None else np.where(valid if a.ndim == 1 else valid[:, None], a, np.nan)  # noqa: E731
-    return ToolResult(path, "csv", x, y, valid, nanify(u), nanify(v), nanify(X), nanify(U), frame="as the tool states")
+    return ToolResult(path, "csv", x, y, valid, nanify(u), nanify(v), nanify(X), nanify(U), frame="as the tool states",
+                      strain=nanify(strain))
 
 
 def read_result(path: str | Path, fmt: str = "native", columns: str | None = None, pixel_origin: str = "center",

@@ -48,6 +48,23 @@ def rigid_fit(A: np.ndarray, B: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return R, cb - R @ ca
 
 
+def truth_strain_2d(dataset: Dataset, state: int, x_px: np.ndarray, y_px: np.ndarray, h_px: float = 0.5) -> np.ndarray:
+    """Exact 2-D Green-Lagrange strain (exx, eyy, exy) of the left images' motion at the points, (N, 3).
+
+    F = I + grad u with grad u by central differences of the exact point truth at x +- h, y +- h (the truth is
+    a smooth function of position: the difference error is of order h^2 times the third derivative, far below
+    any DIC strain noise); E = (F^T F - I) / 2.
+    """
+    d = {}
+    for name, dx, dy in (("xp", h_px, 0), ("xm", -h_px, 0), ("yp", 0, h_px), ("ym", 0, -h_px)):
+        d[name] = point_truth(dataset, x_px + dx, y_px + dy).uv_left_px[state]
+    gx = (d["xp"] - d["xm"]) / (2 * h_px)              # (N, 2): du/dx, dv/dx
+    gy = (d["yp"] - d["ym"]) / (2 * h_px)
+    F = np.stack([np.stack([1 + gx[:, 0], gy[:, 0]], -1), np.stack([gx[:, 1], 1 + gy[:, 1]], -1)], 1)
+    E = 0.5 * (np.einsum("nki,nkj->nij", F, F) - np.eye(2))
+    return np.column_stack([E[:, 0, 0], E[:, 1, 1], E[:, 0, 1]])
+
+
 def _summary(e: np.ndarray, prefix: str, unit: str, axes: str) -> dict:
     """bias, std and RMS per component, RMS and max of the norm, 95th percentile of the norm."""
     ok = np.all(np.isfinite(e), axis=1)
@@ -87,6 +104,10 @@ def score_state(dataset: Dataset, state: int, result: ToolResult, align: str = "
         e2 = np.column_stack([result.u_px, result.v_px]) - truth.uv_left_px[state]
         e2[~scored] = np.nan
         metrics.update(_summary(e2, "", "px", "uv"))
+    if result.strain is not None:
+        es = 1e6 * (result.strain - truth_strain_2d(dataset, state, result.x_px, result.y_px))
+        es[~scored] = np.nan
+        metrics.update(_summary(es, "strain_", "microstrain", ("xx", "yy", "xy")))
     if result.has_3d:
         U = np.array(result.U_mm, float)
         if align == "rigid":
@@ -122,7 +143,7 @@ def _figure(score: StateScore, tool: str):
     if score.error_uv_px is not None:
         panels += [("error of u (px)", score.error_uv_px[:, 0]), ("error of v (px)", score.error_uv_px[:, 1])]
     if score.error_U_um is not None:
-        panels += [("error of |U| components: W (µm)", score.error_U_um[:, 2]),
+        panels += [("error of W (µm)", score.error_U_um[:, 2]),
                    ("error of displacement, norm (µm)", np.linalg.norm(score.error_U_um, axis=1))]
     fig, axes = plt.subplots(1, len(panels) + 1, figsize=(4.2 * (len(panels) + 1), 3.6))
     for ax, (title, values) in zip(axes, panels):
