@@ -109,6 +109,9 @@ def _states_of(dataset, paths: list[Path], state: int | None) -> list[tuple[int,
         k = state_of(p)
         if k is None:
             raise ValueError(f"{p}: the file name ends with no state number; give --state")
+        if k == 0 and len(paths) > 1:
+            print(f"  {p}: state 0 is the reference (nothing to score), left out")
+            continue
         out.append((k, p))
     return sorted(out)
 
