@@ -361,6 +361,8 @@ def _parser() -> argparse.ArgumentParser:
     f6.add_argument("--out", type=Path, required=True)
     da = repsub.add_parser("dic-accuracy", help="DIC bias vs sub-pixel shift, noise floor, shape functions")
     da.add_argument("--out", type=Path, required=True)
+    from workbench.experiments.star import add_star_parser
+    add_star_parser(repsub)
     dof = repsub.add_parser("depth-of-field", help="MIG of an oblique speckled plate: Scheimpflug vs untilted")
     dof.add_argument("--scale", type=_scale, default=1.0)
     dof.add_argument("--object-tilt-deg", type=_angle_deg, default=38.0)
@@ -842,6 +844,11 @@ def _score(args) -> int:
     return score_command(args)
 
 
+def _reproduce_star(args) -> int:
+    from workbench.experiments.star import star_command
+    return star_command(args)
+
+
 def _gate(args) -> int:
     from workbench.tool_cli import gate_command
     return gate_command(args)
@@ -906,7 +913,8 @@ def main(argv: list[str] | None = None) -> int:
                 ("calibration", "convert"): _calibration_convert,
                 ("export", None): _export,
                 ("score", None): _score,
-                ("gate", None): _gate}
+                ("gate", None): _gate,
+                ("reproduce", "star"): _reproduce_star}
     where = " ".join(filter(None, ("workbench", args.command, getattr(args, "what", None))))
     try:
         with _one_line_warnings(where):

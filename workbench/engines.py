@@ -22,6 +22,8 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
+import numpy as np
+
 PLACEHOLDERS = ("ref", "def", "out", "subset", "step", "roi", "x0", "y0", "x1", "y1")
 _PY_ENTRY = re.compile(r"^[A-Za-z_][\w.]*:[A-Za-z_]\w*$")
 
@@ -98,6 +100,40 @@ def run_engine(engine: Engine, ref: Path, deformed: Path, out: Path, *, subset_p
     if not out.is_file():
         raise RuntimeError(f"engine wrote no result file {out}: {command}")
     return {"seconds": time.perf_counter() - start, "command": command}
+
+
+def array_engine(engine, workdir: Path, options: dict | None = None):
+    """An array engine ``(reference, deformed, subset_px, step_px) -> (x, y, u, v)`` that runs ``engine`` (any
+    engine of this module) on float TIFFs of the two images in ``workdir``, as the Star measurement expects."""
+    import io as _io
+
+    import tifffile
+
+    from measurement.files import atomic_write_bytes
+    from workbench.results import read_result
+
+    counter = {"n": 0}
+
+    def run(reference, deformed, subset_px: int, step_px: int):
+        counter["n"] += 1
+        files = []
+        for name, image in (("ref", reference), ("def", deformed)):
+            buffer = _io.BytesIO()
+            tifffile.imwrite(buffer, np.ascontiguousarray(image, dtype=np.float32))
+            path = workdir / f"star_{counter['n']:02d}_{name}.tif"
+            atomic_write_bytes(path, buffer.getvalue())
+            files.append(path)
+        h, w = np.shape(reference)
+        margin = subset_px // 2 + 8
+        out = workdir / f"star_{counter['n']:02d}.csv"
+        run_engine(engine, files[0], files[1], out, subset_px=subset_px, step_px=step_px,
+                   roi_xyxy_px=(margin, margin, w - 1 - margin, h - 1 - margin),
+                   options=options if engine.kind == "python" else None)
+        r = read_result(out, engine.result_format or "native")
+        return r.x_px, r.y_px, r.u_px, r.v_px
+
+    run.__name__ = engine.spec
+    return run
 
 
 def ours(ref: str, deformed: str, out: str, *, subset_px: int = 33, step_px: int = 8, roi_xyxy_px=None,
