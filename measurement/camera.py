@@ -4,11 +4,16 @@ A camera-frame point ``X_cam = (X, Y, Z)`` (OpenCV frame: x right, y down, z for
 the tilted sensor in four steps:
 
 1. normalise on the ideal image plane I_O:           ``x_n = X / Z, y_n = Y / Z``
-2. Brown distortion on I_O (eq 7, written out):       ``x_d = x_n (1 + k1 r^2 + k2 r^4) + 2 p1 x_n y_n + p2 (r^2 + 2 x_n^2)``
-                                                     ``y_d = y_n (1 + k1 r^2 + k2 r^4) + 2 p2 x_n y_n + p1 (r^2 + 2 y_n^2)``
+2. Brown distortion on I_O (eq 7, written out, with the r^6 term k3):
+                                                     ``x_d = x_n (1 + k1 r^2 + k2 r^4 + k3 r^6) + 2 p1 x_n y_n + p2 (r^2 + 2 x_n^2)``
+                                                     ``y_d = y_n (1 + k1 r^2 + k2 r^4 + k3 r^6) + 2 p2 x_n y_n + p1 (r^2 + 2 y_n^2)``
 3. the Scheimpflug tilt (eqs 3, 5, 6):                ``lambda [x_t, y_t, 1]^T = A R_S^T [x_d, y_d, 1]^T``
    with ``R_S = R_Y(beta) R_X(alpha)``
-4. the intrinsic matrix K (eq 2):                     ``u = fx x_t + cx, v = fy y_t + cy``
+4. the intrinsic matrix K (eq 2):                     ``u = fx x_t + skew y_t + cx, v = fy y_t + cy``
+
+The paper's model has ``k3 = skew = 0``; the two terms exist so that calibrations from other tools (OpenCV's 5-term
+vector, DICe, VIC-3D, MatchID, which all carry a radial r^6 term and a skew ``K[0, 1]``) load without loss. They are
+not part of :data:`INTRINSIC_NAMES` (the ten Table 1 parameters the calibration estimates).
 
 Pixel coordinates follow OpenCV: the centre of pixel (row i, column j) is at ``(u, v) = (j, i)``.
 
@@ -32,6 +37,9 @@ import numpy as np
 
 #: Parameter names of Table 1, in order.
 INTRINSIC_NAMES = ("fx", "fy", "cx", "cy", "alpha_deg", "beta_deg", "k1", "k2", "p1", "p2")
+
+#: Camera terms beyond Table 1 (k3: radial r^6; skew: K[0, 1] in px), 0 in the paper's model.
+_EXTRA_NAMES = ("k3", "skew")
 
 #: Tilt angles at or beyond this are refused: the tilted plane would be nearly parallel to the rays.
 MAX_TILT_DEG = 45.0
@@ -97,6 +105,12 @@ class ScheimpflugCamera:
         Radial and tangential distortion on the ideal image plane.
     width, height : int
         Image size in pixels.
+    tilt_model : str
+        ``"rmm"`` (the paper) or ``"opencv"`` (OpenCV's CALIB_TILTED_MODEL), see :func:`tilt_homography`.
+    k3 : float
+        Radial r^6 term (OpenCV's k3); 0 in the paper's model.
+    skew : float
+        Skew in px, the ``K[0, 1]`` entry: ``u = fx x_t + skew y_t + cx``; 0 in the paper's model.
     """
 
     fx: float
@@ -112,6 +126,8 @@ class ScheimpflugCamera:
     width: int = 0
     height: int = 0
     tilt_model: str = "rmm"
+    k3: float = 0.0
+    skew: float = 0.0
 
     def __post_init__(self):
         if self.tilt_model not in TILT_MODELS:
@@ -148,8 +164,13 @@ class ScheimpflugCamera:
         return cls(**kwargs)
 
     def to_dict(self) -> dict:
-        """Plain dict with Table 1 names plus ``width``, ``height`` and ``tilt_model``."""
-        return asdict(self)
+        """Plain dict with Table 1 names plus ``width``, ``height`` and ``tilt_model``; ``k3`` and ``skew`` only when
+        non-zero, so that the dicts (and the hashes of files holding them) of cameras without them are unchanged."""
+        d = asdict(self)
+        for name in _EXTRA_NAMES:
+            if d[name] == 0.0:
+                del d[name]
+        return d
 
     def intrinsics(self) -> dict:
         """Only the ten Table 1 parameters, ``{name: value}``."""
@@ -166,7 +187,7 @@ class ScheimpflugCamera:
     @property
     def K(self) -> np.ndarray:
         """Intrinsic matrix of eq (2), shape (3, 3)."""
-        return np.array([[self.fx, 0.0, self.cx], [0.0, self.fy, self.cy], [0.0, 0.0, 1.0]])
+        return np.array([[self.fx, self.skew, self.cx], [0.0, self.fy, self.cy], [0.0, 0.0, 1.0]])
 
     @property
     def is_tilted(self) -> bool:
@@ -175,7 +196,8 @@ class ScheimpflugCamera:
     def scaled(self, scale: float) -> "ScheimpflugCamera":
         """The same camera with the image shrunk by ``scale``: size and K scale together.
 
-        Pixel centres map as ``u' + 0.5 = scale (u + 0.5)`` so the image edges stay where they were.
+        Pixel centres map as ``u' + 0.5 = scale (u + 0.5)`` so the image edges stay where they were; the skew (px)
+        scales with the focal lengths.
         """
         if not scale > 0:
             raise ValueError(f"scale must be positive, got {scale}")
@@ -184,15 +206,17 @@ class ScheimpflugCamera:
             cx=(self.cx + 0.5) * scale - 0.5, cy=(self.cy + 0.5) * scale - 0.5,
             alpha_deg=self.alpha_deg, beta_deg=self.beta_deg,
             k1=self.k1, k2=self.k2, p1=self.p1, p2=self.p2,
-            width=int(round(self.width * scale)), height=int(round(self.height * scale)), tilt_model=self.tilt_model)
+            width=int(round(self.width * scale)), height=int(round(self.height * scale)), tilt_model=self.tilt_model,
+            k3=self.k3, skew=self.skew * scale)
 
     # ----------------------------------------------------------------------------------------------------
     def distort(self, xy_n: np.ndarray) -> np.ndarray:
-        """Apply Brown distortion (eq 7) to ideal normalised coordinates, (N, 2) -> (N, 2)."""
+        """Apply Brown distortion (eq 7, plus the r^6 term k3) to ideal normalised coordinates, (N, 2) -> (N, 2)."""
         xy_n = np.asarray(xy_n, dtype=float)
         x, y = xy_n[..., 0], xy_n[..., 1]
         r2 = x * x + y * y
-        radial = 1.0 + self.k1 * r2 + self.k2 * r2 * r2
+        # written term by term so that k3 = 0 gives bit-identical results to the former k1, k2 formula
+        radial = 1.0 + self.k1 * r2 + self.k2 * r2 * r2 + self.k3 * r2 * r2 * r2
         xd = x * radial + 2.0 * self.p1 * x * y + self.p2 * (r2 + 2.0 * x * x)
         yd = y * radial + 2.0 * self.p2 * x * y + self.p1 * (r2 + 2.0 * y * y)
         return np.stack([xd, yd], axis=-1)
@@ -205,7 +229,7 @@ class ScheimpflugCamera:
         """
         xy_d = np.asarray(xy_d, dtype=float)
         flat = np.ascontiguousarray(xy_d.reshape(-1, 2))
-        out = _undistort_newton(flat, self.k1, self.k2, self.p1, self.p2, tol, max_iter)
+        out = _undistort_newton(flat, self.k1, self.k2, self.k3, self.p1, self.p2, tol, max_iter)
         return out.reshape(xy_d.shape)
 
     # ----------------------------------------------------------------------------------------------------
@@ -238,7 +262,7 @@ class ScheimpflugCamera:
         h = xy_d @ H[:, :2].T + H[:, 2]
         xt = h[..., 0] / h[..., 2]
         yt = h[..., 1] / h[..., 2]
-        return np.stack([self.fx * xt + self.cx, self.fy * yt + self.cy], axis=-1)
+        return np.stack([self.fx * xt + self.skew * yt + self.cx, self.fy * yt + self.cy], axis=-1)
 
     def backproject(self, pixels: np.ndarray) -> np.ndarray:
         """Pixels to ideal normalised coordinates: the ray through pixel (u, v) is ``(x_n, y_n, 1)``.
@@ -255,8 +279,8 @@ class ScheimpflugCamera:
         pixels = np.atleast_2d(np.asarray(pixels, dtype=float))
         if pixels.shape[-1] != 2:
             raise ValueError(f"pixels must have shape (N, 2), got {pixels.shape}")
-        xt = (pixels[..., 0] - self.cx) / self.fx
         yt = (pixels[..., 1] - self.cy) / self.fy
+        xt = (pixels[..., 0] - self.cx - self.skew * yt) / self.fx
         Hinv = np.linalg.inv(tilt_homography(self.alpha_rad, self.beta_rad, self.tilt_model))
         h = np.stack([xt, yt], axis=-1) @ Hinv[:, :2].T + Hinv[:, 2]
         xy_d = h[..., :2] / h[..., 2:3]
@@ -270,8 +294,10 @@ class ScheimpflugCamera:
 
 
 @numba.njit(cache=True)
-def _undistort_newton(xy_d, k1, k2, p1, p2, tol, max_iter):
-    """Newton inversion of the Brown model per point; NaN where it does not converge. (N, 2) -> (N, 2)."""
+def _undistort_newton(xy_d, k1, k2, k3, p1, p2, tol, max_iter):
+    """Newton inversion of the Brown model (radial to r^6) per point; NaN where it does not converge.
+
+    (N, 2) -> (N, 2)."""
     out = np.empty_like(xy_d)
     for i in range(xy_d.shape[0]):
         xd, yd = xy_d[i, 0], xy_d[i, 1]
@@ -279,13 +305,13 @@ def _undistort_newton(xy_d, k1, k2, p1, p2, tol, max_iter):
         ok = False
         for _ in range(max_iter):
             r2 = x * x + y * y
-            radial = 1.0 + k1 * r2 + k2 * r2 * r2
+            radial = 1.0 + k1 * r2 + k2 * r2 * r2 + k3 * r2 * r2 * r2
             rx = x * radial + 2.0 * p1 * x * y + p2 * (r2 + 2.0 * x * x) - xd
             ry = y * radial + 2.0 * p2 * x * y + p1 * (r2 + 2.0 * y * y) - yd
             if abs(rx) <= tol and abs(ry) <= tol:
                 ok = True
                 break
-            dradial = 2.0 * k1 + 4.0 * k2 * r2  # 2 d(radial)/d(r^2)
+            dradial = 2.0 * k1 + 4.0 * k2 * r2 + 6.0 * k3 * r2 * r2  # 2 d(radial)/d(r^2)
             j11 = radial + x * dradial * x + 2.0 * p1 * y + 6.0 * p2 * x
             j12 = x * dradial * y + 2.0 * p1 * x + 2.0 * p2 * y
             j21 = y * dradial * x + 2.0 * p2 * y + 2.0 * p1 * x
@@ -308,6 +334,9 @@ def opencv_tilted_model(camera: ScheimpflugCamera) -> tuple[np.ndarray, np.ndarr
     ``tau_y = beta``. With both angles non-zero the rotation orders differ (paper ``R_X(-a) R_Y(-b)``,
     OpenCV ``R_Y(-ty) R_X(-tx)``) and no choice of (tau_x, tau_y) reproduces the paper's model, so this
     raises ``ValueError`` instead of returning a silently different camera.
+
+    ``K`` carries the skew as ``K[0, 1]``; note that ``cv2.projectPoints`` ignores ``K[0, 1]`` (it reads fx, fy, cx, cy
+    only), so a camera with ``skew != 0`` is reproduced by OpenCV's own projection only up to that term.
     """
     if camera.tilt_model == "opencv":
         pass  # OpenCV's own parametrisation: exact for any (tau_x, tau_y)
@@ -316,6 +345,6 @@ def opencv_tilted_model(camera: ScheimpflugCamera) -> tuple[np.ndarray, np.ndarr
             "OpenCV's tilted model equals the paper's RMM only for a single-axis tilt; this camera has "
             f"alpha={camera.alpha_deg} deg and beta={camera.beta_deg} deg (the rotation orders differ)")
     dist = np.zeros(14)
-    dist[[0, 1, 2, 3]] = camera.k1, camera.k2, camera.p1, camera.p2
+    dist[[0, 1, 2, 3, 4]] = camera.k1, camera.k2, camera.p1, camera.p2, camera.k3
     dist[12], dist[13] = camera.alpha_rad, camera.beta_rad
     return camera.K, dist

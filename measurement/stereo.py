@@ -172,7 +172,8 @@ def closest_approach(centre_a_mm, direction_a, centre_b_mm, direction_b):
 def projection_jacobian(camera: ScheimpflugCamera, X_cam_mm: np.ndarray) -> np.ndarray:
     """Analytic Jacobian of :meth:`ScheimpflugCamera.project` with respect to the camera-frame point.
 
-    Chains normalisation (eq 1), Brown distortion (eq 7), the Scheimpflug homography (eqs 3-6) and K (eq 2).
+    Chains normalisation (eq 1), Brown distortion (eq 7, with the r^6 term k3), the Scheimpflug homography of the
+    camera's own ``tilt_model`` (eqs 3-6 for ``"rmm"``, OpenCV's for ``"opencv"``) and K with its skew (eq 2).
 
     Parameters
     ----------
@@ -191,24 +192,29 @@ def projection_jacobian(camera: ScheimpflugCamera, X_cam_mm: np.ndarray) -> np.n
         inv_z = np.where(Z > 0, 1.0 / Z, np.nan)
     x, y = X * inv_z, Y * inv_z
     # distortion: D = d(x_d, y_d) / d(x, y), as in the Newton inversion of measurement.camera
-    k1, k2, p1, p2 = camera.k1, camera.k2, camera.p1, camera.p2
+    k1, k2, k3, p1, p2 = camera.k1, camera.k2, camera.k3, camera.p1, camera.p2
     r2 = x * x + y * y
-    radial = 1.0 + k1 * r2 + k2 * r2 * r2
-    dradial = 2.0 * k1 + 4.0 * k2 * r2
+    radial = 1.0 + k1 * r2 + k2 * r2 * r2 + k3 * r2 * r2 * r2
+    dradial = 2.0 * k1 + 4.0 * k2 * r2 + 6.0 * k3 * r2 * r2
     D00 = radial + x * dradial * x + 2.0 * p1 * y + 6.0 * p2 * x
     D01 = x * dradial * y + 2.0 * p1 * x + 2.0 * p2 * y
     D10 = y * dradial * x + 2.0 * p2 * y + 2.0 * p1 * x
     D11 = radial + y * dradial * y + 2.0 * p2 * x + 6.0 * p1 * y
-    # tilt homography then K: u = fx h0 / h2 + cx, v = fy h1 / h2 + cy with h = H [x_d, y_d, 1]
+    # tilt homography (the camera's own parametrisation), then K:
+    # (x_t, y_t) = (h0 / h2, h1 / h2) with h = H [x_d, y_d, 1]; u = fx x_t + skew y_t + cx, v = fy y_t + cy
     xy_d = camera.distort(np.stack([x, y], axis=-1))
-    H = tilt_homography(camera.alpha_rad, camera.beta_rad)
+    H = tilt_homography(camera.alpha_rad, camera.beta_rad, camera.tilt_model)
     h = xy_d @ H[:, :2].T + H[:, 2]
     inv_h2 = 1.0 / h[:, 2]
+    # T[t][c] h2 = d(x_t, y_t)_t / d(x_d, y_d)_c (the common 1 / h2 is applied last, as before skew existed, so
+    # that a camera without skew gives bit-identical Jacobians)
+    T = [[H[t, c] - h[:, t] * inv_h2 * H[2, c] for c in (0, 1)] for t in (0, 1)]
+    K = camera.K
     J = np.empty((len(X), 2, 3))
-    for row, f in ((0, camera.fx), (1, camera.fy)):
-        # M = d(pixel_row) / d(x_d, y_d)
-        M0 = f * (H[row, 0] - h[:, row] * inv_h2 * H[2, 0]) * inv_h2
-        M1 = f * (H[row, 1] - h[:, row] * inv_h2 * H[2, 1]) * inv_h2
+    for row in (0, 1):
+        # M = d(pixel_row) / d(x_d, y_d) = K[row, :2] @ T / h2
+        M0 = (K[row, 0] * T[0][0] + K[row, 1] * T[1][0]) * inv_h2
+        M1 = (K[row, 0] * T[0][1] + K[row, 1] * T[1][1]) * inv_h2
         # (M D) then the normalisation d(x, y) / d(X, Y, Z) = [[1, 0, -x], [0, 1, -y]] / Z
         MD0 = M0 * D00 + M1 * D10
         MD1 = M0 * D01 + M1 * D11

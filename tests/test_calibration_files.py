@@ -496,23 +496,37 @@ def test_a_plain_opencv_stereo_yaml_loads_and_projects_as_opencv_does(tmp_path):
 
 
 def test_a_plain_opencv_yaml_with_terms_the_model_lacks_is_refused_with_their_cost(tmp_path):
+    """k4 (OpenCV's rational model) is refused with the px it would cost at the image corners (computed here with
+    OpenCV alone); k3 and a skew K[0][1] are held by the camera model and load."""
     K = np.array([[2400.0, 0, 1224.0], [0, 2400.0, 1024.0], [0, 0, 1]])
     R, T = np.eye(3), np.array([[-140.0], [0.0], [28.0]])
-    D_k3 = np.array([[-0.1, 0.05, 0.0, 0.0, 0.3]])
-    _write_plain_opencv_yaml(tmp_path / "k3.yaml", K, D_k3, K, D_k3[:, :4], R, T, (2448, 2048))
-    # the cost, computed here with OpenCV: the corner pixel's ray projected with and without k3
-    ray = np.append(cv2.undistortPoints(np.array([[[0.0, 0.0]]]), K, D_k3).ravel(), 1.0)
-    cost = np.linalg.norm(cv2.projectPoints(ray[None], np.zeros(3), np.zeros(3), K, D_k3)[0].ravel()
-                          - cv2.projectPoints(ray[None], np.zeros(3), np.zeros(3), K, D_k3[0, :4])[0].ravel())
-    with pytest.raises(ValueError, match=rf"k3\.yaml.*D1.*has k3 = 0\.3: this instrument's lens model has k1, k2, "
-                                         rf"p1, p2 only; dropping the rest would move the image corners by up to "
-                                         rf"{cost:.3g} px"):
-        load_opencv_yaml(tmp_path / "k3.yaml")
+    D_k4 = np.array([[-0.1, 0.05, 0.0, 0.0, 0.3, 0.2, 0.0, 0.0]])
+    _write_plain_opencv_yaml(tmp_path / "k4.yaml", K, D_k4, K, D_k4[:, :4], R, T, (2448, 2048))
+    # the cost, computed here with OpenCV: the four corner pixels' rays projected with and without k4
+    corners = np.array([[0.0, 0.0], [2447.0, 0.0], [0.0, 2047.0], [2447.0, 2047.0]])
+    rays = np.column_stack([cv2.undistortPoints(corners[:, None], K, D_k4).reshape(-1, 2), np.ones(4)])
+    without = D_k4.copy()
+    without[0, 5] = 0.0
+    cost = np.max(np.linalg.norm(cv2.projectPoints(rays, np.zeros(3), np.zeros(3), K, D_k4)[0].reshape(-1, 2)
+                                 - cv2.projectPoints(rays, np.zeros(3), np.zeros(3), K, without)[0].reshape(-1, 2),
+                                 axis=1))
+    with pytest.raises(ValueError, match=rf"k4\.yaml.*D1.*has k4 = 0\.2: this instrument's lens model has k1, k2, "
+                                         rf"p1, p2, k3 \(and tau_x, tau_y\) only; dropping the rest would move the "
+                                         rf"image corners by up to {cost:.3g} px"):
+        load_opencv_yaml(tmp_path / "k4.yaml")
+    D_k3 = D_k4[:, :5]
     skewed = K.copy()
     skewed[0, 1] = 2.0
-    _write_plain_opencv_yaml(tmp_path / "skew.yaml", skewed, D_k3[:, :4], K, D_k3[:, :4], R, T, (2448, 2048))
-    with pytest.raises(ValueError, match=r"skew\.yaml.*K1.*skew term K\[0\]\[1\] = 2"):
-        load_opencv_yaml(tmp_path / "skew.yaml")
+    _write_plain_opencv_yaml(tmp_path / "skew.yaml", skewed, D_k3, K, D_k3[:, :4], R, T, (2448, 2048))
+    rig = load_opencv_yaml(tmp_path / "skew.yaml")
+    assert rig.left.skew == 2.0 and rig.left.k3 == 0.3 and rig.right.k3 == 0.0
+    # k3 loads as OpenCV applies it (cv2.projectPoints with the file's K without skew, D)
+    X = np.array([[30.0, -20.0, 400.0], [-60.0, 45.0, 380.0]])
+    ref = cv2.projectPoints(X, np.zeros(3), np.zeros(3), K, D_k3)[0].reshape(-1, 2)
+    ours = rig.left.project(X)
+    # the skew shifts u by skew * y_t: undo it with the tilted-plane y of the point, (v - cy) / fy
+    np.testing.assert_allclose(ours[:, 0] - 2.0 * (ours[:, 1] - K[1, 2]) / K[1, 1], ref[:, 0], atol=1e-6)
+    np.testing.assert_allclose(ours[:, 1], ref[:, 1], atol=1e-6)
     fs = cv2.FileStorage(str(tmp_path / "nosize.yaml"), cv2.FILE_STORAGE_WRITE)
     for key, value in (("K1", K), ("D1", D_k3[:, :4]), ("K2", K), ("D2", D_k3[:, :4]), ("R", R), ("T", T)):
         fs.write(key, value)

@@ -186,21 +186,44 @@ def _dice_files(dataset: Dataset, names, poly: np.ndarray, settings: ExportSetti
             "subset_defs.txt": "\n".join(roi) + "\n"}
 
 
-def _save_calibration(fmt: str, rig, path: Path) -> list[dict]:
-    """Write the rig in ``fmt``; returns per camera ``{"camera", "model", "mean_px", "max_px", "notes"}``."""
-    if fmt == "native":
-        from measurement.calibration.io import save_rig
-        save_rig(rig, path)
-        return [{"camera": s, "model": "rmm", "mean_px": 0.0, "max_px": 0.0, "notes": []} for s in ("left", "right")]
+def opencv_kd_cost_px(cam, n: int = 41) -> tuple[float, float]:
+    """Mean and max distance (px) over an ``n x n`` grid of the image between ``cam`` and what a tool reading only
+    K and D (``cv2.projectPoints``) makes of the K/D our OpenCV YAML holds for it."""
+    import cv2
+
+    from measurement.calibration.io import _opencv_distortion
+
+    u, v = np.meshgrid(np.linspace(0, cam.width - 1, n), np.linspace(0, cam.height - 1, n))
+    rays = cam.rays(np.column_stack([u.ravel(), v.ravel()]))
+    rays = rays / rays[:, 2:3]
+    ours = cam.project(rays)
+    theirs = cv2.projectPoints(rays, np.zeros(3), np.zeros(3), cam.K, _opencv_distortion(cam))[0].reshape(-1, 2)
+    d = np.linalg.norm(ours - theirs, axis=1)
+    return float(d.mean()), float(d.max())
+
+
+def _save_calibration(fmt: str, rig, path: Path, frame_rotation: bool = False) -> list[dict]:
+    """Write the rig in ``fmt``; returns per camera ``{"camera", "model", "mean_px", "max_px", "notes"}``.
+
+    ``opencv``: our YAML holds every parameter as named scalars (exact for this project's loader) and K/D for
+    OpenCV; the cost reported is what a tool reading only K and D loses.
+    """
     from measurement.calibration.formats import save_calibration_as
 
-    report = save_calibration_as(rig, path, fmt)
-    return [{"camera": c.camera, "model": c.model, "mean_px": float(c.mean_px), "max_px": float(c.max_px),
-             "notes": list(c.notes)} for c in report.cameras]
+    report = save_calibration_as(rig, path, "json" if fmt == "native" else fmt, frame_rotation=frame_rotation)
+    out = [{"camera": c.side, "model": c.model, "mean_px": float(c.mean_px), "max_px": float(c.max_px),
+            "notes": list(c.notes)} for c in report.cameras]
+    if fmt == "opencv":
+        for c in out:
+            c["mean_px"], c["max_px"] = opencv_kd_cost_px(getattr(rig, c["camera"]))
+            c["model"] = "OpenCV K, D (CALIB_TILTED_MODEL, tau = alpha, beta)"
+            if c["max_px"] > 1e-6:
+                c["notes"].append("a tool reading only K/D gets OpenCV's tilt order, not the paper's two-axis RMM tilt")
+    return out + [{"camera": "file", "notes": list(report.notes)}] if report.notes else out
 
 
 def export_dataset(dataset: Dataset, fmt: str, out: Path, settings: ExportSettings = ExportSettings(),
-                   log=print) -> dict:
+                   log=print, frame_rotation: bool = False) -> dict:
     """Write ``dataset`` in ``fmt`` into the new folder ``out``; returns the export log (also ``export.json``)."""
     if fmt not in FORMATS:
         raise ValueError(f"--format {fmt!r}: choose one of {', '.join(FORMATS)}")
@@ -212,7 +235,7 @@ def export_dataset(dataset: Dataset, fmt: str, out: Path, settings: ExportSettin
     shutil.rmtree(tmp, ignore_errors=True)
     tmp.mkdir(parents=True)
     try:
-        record = _export_into(dataset, fmt, tmp, settings, log)
+        record = _export_into(dataset, fmt, tmp, settings, log, frame_rotation)
         record["seconds"] = round(time.perf_counter() - start, 2)
         atomic_write_text(tmp / "export.json", json.dumps(record, indent=1))
         if out.exists():
@@ -224,7 +247,8 @@ def export_dataset(dataset: Dataset, fmt: str, out: Path, settings: ExportSettin
     return record
 
 
-def _export_into(dataset: Dataset, fmt: str, folder: Path, settings: ExportSettings, log) -> dict:
+def _export_into(dataset: Dataset, fmt: str, folder: Path, settings: ExportSettings, log,
+                 frame_rotation: bool = False) -> dict:
     names = image_names(fmt, dataset)
     for state, name in zip(dataset.images, names):
         for side, rel in name.items():
@@ -239,12 +263,19 @@ def _export_into(dataset: Dataset, fmt: str, folder: Path, settings: ExportSetti
     if dataset.stereo:
         rig, notes = true_rig(dataset)
         record["notes"] += notes
-        cams = _save_calibration(fmt, rig, folder / CALIBRATION_NAME[fmt])
-        record["calibration"] = {"file": CALIBRATION_NAME[fmt], "cameras": cams}
+        cams = _save_calibration(fmt, rig, folder / CALIBRATION_NAME[fmt], frame_rotation)
+        file_notes = [n for c in cams if c["camera"] == "file" for n in c["notes"]]
+        cams = [c for c in cams if c["camera"] != "file"]
+        record["calibration"] = {"file": CALIBRATION_NAME[fmt], "cameras": cams, "frame_rotation": frame_rotation,
+                                 "notes": file_notes}
+        record["notes"] += file_notes
+        for n in file_notes:
+            log(f"  calibration: {n}")
         for c in cams:
-            line = (f"  {c['camera']}: calibration as {c['model']}: projects the true camera within "
-                    f"{c['mean_px']:.3g} px mean, {c['max_px']:.3g} px max over the image")
-            log(line + "".join(f"; {n}" for n in c["notes"]))
+            log(f"  {c['camera']} camera: written as {c['model']}; it projects within {c['mean_px']:.3g} px (mean), "
+                f"{c['max_px']:.3g} px (max) of the true camera over the image")
+            for n in c["notes"]:
+                log(f"    - {n}")
             record["notes"] += [f"{c['camera']}: {n}" for n in c["notes"]]
         for n in notes:
             log(f"  note: {n}")

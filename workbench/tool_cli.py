@@ -21,6 +21,9 @@ def add_parsers(sub, positive_int) -> None:
     ex.add_argument("--step", type=positive_int, default=8, help="step written into the tool's input, px")
     ex.add_argument("--grid-step", type=positive_int, default=8, help="spacing of the truth grid of points.csv, px")
     ex.add_argument("--truth-step", type=positive_int, default=1, help="spacing of the per-pixel truth array, px")
+    ex.add_argument("--frame-rotation", action="store_true",
+                    help="let the calibration absorb a Scheimpflug tilt the format lacks in a rotation of the camera "
+                         "frames (exact for DICe's OpenCV tilt); the extrinsics carry it")
     ex.add_argument("--store", type=Path, default=None, help="render store (default $WORKBENCH_STORE)")
     ex.add_argument("--out", type=Path, required=True, help="a new folder")
 
@@ -74,7 +77,7 @@ def export_command(args) -> int:
     dataset = open_dataset(args.dataset, args.store)
     settings = ExportSettings(subset_px=args.subset, step_px=args.step, grid_step_px=args.grid_step,
                               truth_step_px=args.truth_step)
-    record = export_dataset(dataset, args.format, args.out, settings)
+    record = export_dataset(dataset, args.format, args.out, settings, frame_rotation=args.frame_rotation)
     print(f"wrote {args.out} ({record['seconds']:.1f} s): see {args.out / 'export.json'}")
     return 0
 

@@ -10,6 +10,11 @@ never filled with 0 or a default), types (a string where a number belongs is ref
 :data:`~measurement.camera.MAX_TILT_DEG`, ``|k1|, |k2|, |p1|, |p2| < 1e3``, image size positive integers,
 R a proper rotation within 1e-6, ``0 < |T| < 1e6`` mm). Every defect raises
 :class:`~measurement.schema.FileFormatError` (a ``ValueError``) naming the file and the key.
+
+Cameras may carry two terms beyond Table 1 (:data:`EXTRA_RANGES`): the radial r^6 coefficient ``k3`` and the skew
+``K[0, 1]`` (px). They are written only when non-zero (so files and hashes of calibrations without them are unchanged):
+in the JSON as ``<side>.extra_intrinsics = {"k3": ..., "skew": ...}``, in the YAML as ``<side>_k3``/``<side>_skew``
+(and in K/D). Loading accepts them as optional keys, range-checked like the rest.
 """
 from __future__ import annotations
 
@@ -27,7 +32,7 @@ from measurement.schema import FileFormatError, Node, read_json_file, read_text_
 
 __all__ = ["FORMAT", "CONVENTION", "RANGES", "CalibratedRig", "FileFormatError", "calibration_to_dict",
            "save_calibration", "load_calibration", "export_opencv_yaml", "load_opencv_yaml", "rig_to_dict", "save_rig",
-           "opencv_distortion_cost_px"]
+           "opencv_distortion_cost_px", "EXTRA_RANGES", "EXTRA_CONVENTION"]
 
 FORMAT = "scheimpflug-stereo-calibration/1"
 CONVENTION = ("Camera frame as OpenCV (x right, y down, z forward), pixel centres at integer coordinates. "
@@ -41,7 +46,13 @@ CONVENTION = ("Camera frame as OpenCV (x right, y down, z forward), pixel centre
 RANGES = {"fx": (0.0, 1e6), "fy": (0.0, 1e6), "cx": (-1e6, 1e6), "cy": (-1e6, 1e6),
           "alpha_deg": (-MAX_TILT_DEG, MAX_TILT_DEG), "beta_deg": (-MAX_TILT_DEG, MAX_TILT_DEG),
           "k1": (-1e3, 1e3), "k2": (-1e3, 1e3), "p1": (-1e3, 1e3), "p2": (-1e3, 1e3)}
-_UNITS = {"fx": "px", "fy": "px", "cx": "px", "cy": "px", "alpha_deg": "deg", "beta_deg": "deg"}
+#: Accepted range of the optional terms beyond Table 1: k3 multiplies r^6, so on the narrow fields of DIC lenses
+#: (corners at r ~ 0.1-0.2) calibrations report |k3| of tens (the DIC Challenge cameras: ~30), hence a wider bound.
+EXTRA_RANGES = {"k3": (-1e4, 1e4), "skew": (-1e4, 1e4)}
+#: What the optional terms mean, written beside them.
+EXTRA_CONVENTION = ("k3: radial r^6 term, x_d = x_n (1 + k1 r^2 + k2 r^4 + k3 r^6) + tangential terms; skew (px): "
+                    "u = fx x_t + skew y_t + cx (K[0][1]). Absent means 0.")
+_UNITS = {"fx": "px", "fy": "px", "cx": "px", "cy": "px", "alpha_deg": "deg", "beta_deg": "deg", "skew": "px"}
 #: Image width and height: integers in [1, MAX_IMAGE_PX].
 MAX_IMAGE_PX = 1_000_000
 #: The stereo translation's length must be in (0, MAX_BASELINE_MM) mm.
@@ -59,9 +70,22 @@ class CalibratedRig:
     T_right_from_left_mm: np.ndarray
 
 
+def _extra_terms(cam: ScheimpflugCamera) -> dict:
+    """``{"extra_intrinsics": {...}}`` with the non-zero terms beyond Table 1, or ``{}`` (nothing written)."""
+    extra = {n: float(getattr(cam, n)) for n in EXTRA_RANGES if getattr(cam, n) != 0.0}
+    return {"extra_intrinsics": extra} if extra else {}
+
+
+def _with_extra_convention(d: dict, cams) -> dict:
+    if any(_extra_terms(c) for c in cams):
+        d["extra_intrinsics_convention"] = EXTRA_CONVENTION
+    return d
+
+
 def _camera_entry(cam_cal) -> dict:
     cam = cam_cal.camera
-    return {"intrinsics": cam.intrinsics(), "sigma": {n: cam_cal.sigma[n] for n in INTRINSIC_NAMES},
+    return {"intrinsics": cam.intrinsics(), **_extra_terms(cam),
+            "sigma": {n: cam_cal.sigma[n] for n in INTRINSIC_NAMES},
             "tilt_model": cam.tilt_model, "width": cam.width, "height": cam.height,
             "reprojection_rms_px": cam_cal.rms_px, "per_view_rms_px": np.asarray(cam_cal.per_view_rms_px).tolist(),
             "steps": [{"step": s[0], "free": list(s[1]), "rms_px": s[2]} for s in cam_cal.steps]}
@@ -78,6 +102,7 @@ def calibration_to_dict(cal: StereoCalibration, extra: dict | None = None) -> di
                     "sigma_rvec": cal.sigma_stereo["rvec"], "sigma_T_mm": cal.sigma_stereo["T_mm"]},
          "reprojection_rms_px": dict(cal.rms_px),
          "steps": [{"step": s[0], "free": list(s[1]), "rms_px": s[2]} for s in cal.steps]}
+    _with_extra_convention(d, (cal.left.camera, cal.right.camera))
     if extra:
         d.update(extra)
     return d
@@ -87,11 +112,13 @@ def rig_to_dict(rig: CalibratedRig, extra: dict | None = None) -> dict:
     """A loaded rig (no uncertainties or calibration history) in the calibration JSON format."""
     d = {"format": FORMAT, "convention": CONVENTION, "model": rig.model,
          "image_size_px": [rig.left.width, rig.left.height],
-         **{side: {"intrinsics": cam.intrinsics(), "tilt_model": cam.tilt_model, "width": cam.width,
-                   "height": cam.height} for side, cam in (("left", rig.left), ("right", rig.right))},
+         **{side: {"intrinsics": cam.intrinsics(), **_extra_terms(cam), "tilt_model": cam.tilt_model,
+                   "width": cam.width, "height": cam.height}
+            for side, cam in (("left", rig.left), ("right", rig.right))},
          "stereo": {"R_right_from_left": np.asarray(rig.R_right_from_left).tolist(),
                     "rvec_right_from_left": cv2.Rodrigues(np.asarray(rig.R_right_from_left))[0].ravel().tolist(),
                     "T_right_from_left_mm": np.asarray(rig.T_right_from_left_mm).ravel().tolist()}}
+    _with_extra_convention(d, (rig.left, rig.right))
     if extra:
         d.update(extra)
     return d
@@ -155,7 +182,7 @@ def _camera(values: dict[str, float], width: int, height: int, tilt_model: str, 
 
 
 def _intrinsic(node: Node, name: str) -> float:
-    lo, hi = RANGES[name]
+    lo, hi = RANGES[name] if name in RANGES else EXTRA_RANGES[name]
     return node.number(lo, hi, unit=_UNITS.get(name, ""))
 
 
@@ -164,11 +191,20 @@ def _json_camera(entry: Node, model: str) -> ScheimpflugCamera:
     intr = entry["intrinsics"]
     intr.only_keys(INTRINSIC_NAMES)
     values = {n: _intrinsic(intr[n], n) for n in INTRINSIC_NAMES}
+    extra = entry.get("extra_intrinsics")
+    if extra is not None:                              # optional: written only for cameras with k3 or skew
+        extra.only_keys(EXTRA_RANGES)
+        values.update({n: _intrinsic(extra[n], n) for n in EXTRA_RANGES if extra.get(n) is not None})
     width, height = entry["width"].integer(1, MAX_IMAGE_PX), entry["height"].integer(1, MAX_IMAGE_PX)
     tilt_model = entry["tilt_model"].string(TILT_MODELS)
     key = entry.key
     return _camera(values, width, height, tilt_model, model, entry,
                    lambda n: f"{key}.{'intrinsics.' if n in INTRINSIC_NAMES else ''}{n}")
+
+
+def _optional_extras(doc: Node, prefix: str) -> dict[str, float]:
+    """The optional ``<prefix>k3`` / ``<prefix>skew`` scalars of a YAML (absent = 0, not returned)."""
+    return {n: _intrinsic(doc[f"{prefix}{n}"], n) for n in EXTRA_RANGES if doc.get(f"{prefix}{n}") is not None}
 
 
 def _model(node: Node) -> str:
@@ -230,8 +266,9 @@ def export_opencv_yaml(rig: CalibratedRig | StereoCalibration, path: str | Path)
     Table 1 parameter.
 
     ``D1``/``D2`` are OpenCV's 14 ``CALIB_TILTED_MODEL`` coefficients. They reproduce our projection exactly only
-    for the ``opencv-tilt`` and ``pinhole`` models or a single-axis RMM tilt; ``D_exact`` says which. The named
-    scalars (``left_fx`` ...) always hold the exact model. The file is written atomically, after the text has
+    for the ``opencv-tilt`` and ``pinhole`` models or a single-axis RMM tilt, and without a skew (``K[0][1]``, which
+    ``cv2.projectPoints`` ignores); ``D_exact`` says which. The named scalars (``left_fx`` ..., ``left_k3`` and
+    ``left_skew`` when non-zero) always hold the exact model. The file is written atomically, after the text has
     passed :func:`load_opencv_yaml`'s validation.
     """
     if isinstance(rig, StereoCalibration):
@@ -249,12 +286,15 @@ def export_opencv_yaml(rig: CalibratedRig | StereoCalibration, path: str | Path)
     for side, cam in (("1", rig.left), ("2", rig.right)):
         fs.write(f"K{side}", cam.K)
         fs.write(f"D{side}", _opencv_distortion(cam))
-        exact = cam.tilt_model == "opencv" or cam.alpha_deg == 0.0 or cam.beta_deg == 0.0
+        # cv2.projectPoints reads fx, fy, cx, cy of K only, so a skew makes K/D inexact for OpenCV's projection
+        exact = (cam.tilt_model == "opencv" or cam.alpha_deg == 0.0 or cam.beta_deg == 0.0) and cam.skew == 0.0
         fs.write(f"D{side}_exact", int(exact))
     for name, cam in (("left", rig.left), ("right", rig.right)):
         fs.write(f"{name}_tilt_model", cam.tilt_model)
         for n in INTRINSIC_NAMES:
             fs.write(f"{name}_{n}", float(getattr(cam, n)))
+        for n, v in _extra_terms(cam).get("extra_intrinsics", {}).items():
+            fs.write(f"{name}_{n}", v)
     fs.write("R", np.asarray(rig.R_right_from_left, float))
     fs.write("T", np.asarray(rig.T_right_from_left_mm, float).reshape(3, 1))
     text = fs.releaseAndGetString()
@@ -265,7 +305,7 @@ def export_opencv_yaml(rig: CalibratedRig | StereoCalibration, path: str | Path)
 def _opencv_distortion(cam: ScheimpflugCamera) -> np.ndarray:
     """OpenCV's 14 coefficients (k1, k2, p1, p2, k3, k4, k5, k6, s1..s4, tau_x, tau_y) of ``cam``, (1, 14)."""
     dist = np.zeros((1, 14))
-    dist[0, :4] = cam.k1, cam.k2, cam.p1, cam.p2
+    dist[0, :5] = cam.k1, cam.k2, cam.p1, cam.p2, cam.k3
     dist[0, 12:] = cam.alpha_rad, cam.beta_rad
     return dist
 
@@ -384,9 +424,16 @@ def _plain_size(doc: Node) -> tuple[int, int]:
     raise doc.error("has no image size: add image_width and image_height (px), or imageSize: [width, height]")
 
 
+#: The OpenCV distortion terms this instrument's lens model holds, by position: k1 k2 p1 p2 k3, and tau_x tau_y
+#: (positions 12, 13: CALIB_TILTED_MODEL, this instrument's "opencv" tilt model).
+_PLAIN_KEPT = (0, 1, 2, 3, 4, 12, 13)
+
+
 def _plain_distortion(node: Node, K: np.ndarray, size: tuple[int, int]) -> np.ndarray:
-    """k1 k2 p1 p2 of an OpenCV distortion vector (4, 5, 8, 12 or 14 values); any later non-zero term is refused
-    with the pixels it would move the image corners by (this instrument's lens model has k1 k2 p1 p2)."""
+    """The 14 OpenCV coefficients of a distortion vector of 4, 5, 8, 12 or 14 values (zero-padded), shape (14,).
+
+    The model holds k1 k2 p1 p2 k3 and tau_x tau_y; a non-zero rational (k4-k6) or thin-prism (s1-s4) term is
+    refused with the pixels dropping it would move the image corners by."""
     value = node.value
     if isinstance(value, dict):
         rows, cols = int(value.get("rows", 0)), int(value.get("cols", 0))
@@ -398,42 +445,53 @@ def _plain_distortion(node: Node, K: np.ndarray, size: tuple[int, int]) -> np.nd
         d = np.asarray(Node(value, node.file, node.key).array((len(value),) if isinstance(value, list) else (4,)))
         if d.size not in (4, 5, 8, 12, 14):
             raise node.error(f"must hold 4, 5, 8, 12 or 14 distortion terms, got {d.size}")
-    extra = {name: float(v) for name, v in zip(_OPENCV_EXTRA_TERMS, d[4:]) if v != 0.0}
+    extra = {name: float(v) for i, (name, v) in enumerate(zip(_OPENCV_EXTRA_TERMS, d[4:]), start=4)
+             if v != 0.0 and i not in _PLAIN_KEPT}
+    full14 = np.zeros(14)
+    full14[:d.size] = d
     if extra:
         w, h = size
         corners = np.array([[0, 0], [w - 1, 0], [0, h - 1], [w - 1, h - 1]], dtype=np.float64)
         ideal = cv2.undistortPoints(corners.reshape(-1, 1, 2), K, d).reshape(-1, 2)
         rays = np.column_stack([ideal, np.ones(len(ideal))])
-        full = cv2.projectPoints(rays, np.zeros(3), np.zeros(3), K, d)[0].reshape(-1, 2)
-        short = cv2.projectPoints(rays, np.zeros(3), np.zeros(3), K, d[:4])[0].reshape(-1, 2)
+        kept = np.zeros(14)
+        kept[list(_PLAIN_KEPT)] = full14[list(_PLAIN_KEPT)]
+        full = cv2.projectPoints(rays, np.zeros(3), np.zeros(3), K, full14)[0].reshape(-1, 2)
+        short = cv2.projectPoints(rays, np.zeros(3), np.zeros(3), K, kept)[0].reshape(-1, 2)
         cost = float(np.max(np.linalg.norm(full - short, axis=1)))
         terms = ", ".join(f"{k} = {v:g}" for k, v in extra.items())
-        raise node.error(f"has {terms}: this instrument's lens model has k1, k2, p1, p2 only; dropping the rest "
-                         f"would move the image corners by up to {cost:.3g} px, so the file is refused")
-    return d[:4]
+        raise node.error(f"has {terms}: this instrument's lens model has k1, k2, p1, p2, k3 (and tau_x, tau_y) only; "
+                         f"dropping the rest would move the image corners by up to {cost:.3g} px, so the file is "
+                         f"refused")
+    return full14
 
 
 def _rig_from_plain_opencv(doc: Node, path) -> CalibratedRig:
-    """A stereo calibration as OpenCV programs write it: K1 D1 K2 D2 R T (pinhole + Brown distortion) and the
-    image size. T is taken in mm (the unit of the square size given to the calibration)."""
+    """A stereo calibration as OpenCV programs write it: K1 D1 K2 D2 R T and the image size; a pinhole rig, or an
+    ``opencv-tilt`` one when a distortion vector has tau_x/tau_y. K[0][1] is the skew. T is taken in mm (the unit of
+    the square size given to the calibration)."""
     size = _plain_size(doc)
-    cams = {}
+    found = {}
     for n, name in ((1, "left"), (2, "right")):
         k_node = _first_key(doc, _PLAIN_K, n, "camera matrix")
         K = _opencv_matrix(k_node, (3, 3))
-        if K[0, 1] != 0.0:
-            raise k_node.error(f"has a skew term K[0][1] = {K[0, 1]:g}: this instrument's camera model has no skew")
         if not (np.allclose(K[1, 0], 0) and np.allclose(K[2], [0, 0, 1])):
-            raise k_node.error(f"is not a camera matrix [[fx, 0, cx], [0, fy, cy], [0, 0, 1]]: {K.tolist()}")
-        d = _plain_distortion(_first_key(doc, _PLAIN_D, n, "distortion vector"), K, size)
-        values = {"fx": K[0, 0], "fy": K[1, 1], "cx": K[0, 2], "cy": K[1, 2], "alpha_deg": 0.0, "beta_deg": 0.0,
-                  "k1": d[0], "k2": d[1], "p1": d[2], "p2": d[3]}
+            raise k_node.error(f"is not a camera matrix [[fx, s, cx], [0, fy, cy], [0, 0, 1]]: {K.tolist()}")
+        d_node = _first_key(doc, _PLAIN_D, n, "distortion vector")
+        d = _plain_distortion(d_node, K, size)
+        values = {"fx": K[0, 0], "fy": K[1, 1], "cx": K[0, 2], "cy": K[1, 2],
+                  "alpha_deg": float(np.rad2deg(d[12])), "beta_deg": float(np.rad2deg(d[13])),
+                  "k1": d[0], "k2": d[1], "p1": d[2], "p2": d[3], "k3": d[4], "skew": K[0, 1]}
         for key, v in values.items():
-            lo, hi = RANGES[key]
+            lo, hi = RANGES[key] if key in RANGES else EXTRA_RANGES[key]
             if not (lo < v < hi) or (key in ("fx", "fy") and not v > 0):
-                raise k_node.error(f"gives {key} = {v:g}, outside ({lo:g}, {hi:g})")
-        cams[name] = _camera({k: float(v) for k, v in values.items()}, size[0], size[1], "rmm", "pinhole", doc,
-                             lambda k: k)
+                node = d_node if key in ("alpha_deg", "beta_deg", "k1", "k2", "p1", "p2", "k3") else k_node
+                raise node.error(f"gives {key} = {v:g}, outside ({lo:g}, {hi:g})")
+        found[name] = {k: float(v) for k, v in values.items()}
+    # one model for the rig: OpenCV's tilted model if either camera has a tilt (tau = 0 is the pinhole then)
+    tilted = any(v["alpha_deg"] != 0.0 or v["beta_deg"] != 0.0 for v in found.values())
+    model, tilt_model = ("opencv-tilt", "opencv") if tilted else ("pinhole", "rmm")
+    cams = {name: _camera(v, size[0], size[1], tilt_model, model, doc, lambda k: k) for name, v in found.items()}
     r_node = doc["R"]
     r_val = r_node.value
     if isinstance(r_val, dict) and (int(r_val.get("rows", 0)), int(r_val.get("cols", 0))) in ((3, 1), (1, 3)):
@@ -447,7 +505,7 @@ def _rig_from_plain_opencv(doc: Node, path) -> CalibratedRig:
     if shape not in ((3, 1), (1, 3)):
         raise t_node.error(f"must be a 3-vector, got {shape[0]} x {shape[1]}")
     T = _translation(Node(_opencv_matrix(t_node, shape).reshape(3, 1).tolist(), path, "T"), (3, 1))
-    return CalibratedRig("pinhole", cams["left"], cams["right"], R, T)
+    return CalibratedRig(model, cams["left"], cams["right"], R, T)
 
 
 def _rig_from_yaml_text(text: str, path) -> CalibratedRig:
@@ -462,6 +520,7 @@ def _rig_from_yaml_text(text: str, path) -> CalibratedRig:
     cams = {}
     for side, name in (("1", "left"), ("2", "right")):
         values = {n: _intrinsic(doc[f"{name}_{n}"], n) for n in INTRINSIC_NAMES}
+        values.update(_optional_extras(doc, f"{name}_"))
         tilt_model = doc[f"{name}_tilt_model"].string(TILT_MODELS)
         cam = _camera(values, width, height, tilt_model, model, doc, lambda n: f"{name}_{n}")
         # K and D are OpenCV's view of the same camera: if present they must agree with the named scalars,
@@ -487,7 +546,9 @@ def load_opencv_yaml(path: str | Path) -> CalibratedRig:
     as other OpenCV programs write a stereo
     calibration (``cv2.stereoCalibrate``): ``K1``/``M1``/``cameraMatrix1``, ``D1``/``distCoeffs1``, the same
     for camera 2, ``R`` (3 x 3 or a rotation vector), ``T`` (mm) and the image size (``image_width`` and
-    ``image_height``, or ``imageSize``); a pinhole rig. Raises FileFormatError (a ValueError) naming the file
+    ``image_height``, or ``imageSize``); a pinhole rig (``opencv-tilt`` when a D has tau_x/tau_y; k3 and the skew
+    K[0][1] are kept; non-zero k4-k6 or s1-s4 are refused with their pixel cost).
+    Raises FileFormatError (a ValueError) naming the file
     and the key.
     """
     return _rig_from_yaml_text(read_text_file(path, "calibration file", max_bytes=MAX_YAML_BYTES), path)
