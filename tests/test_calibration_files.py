@@ -560,7 +560,7 @@ def test_calibration_convert_round_trips_and_states_what_opencv_k_and_d_cost(tmp
     two_axis = dataclasses.replace(one_axis, alpha_deg=0.6)
     assert opencv_distortion_cost_px(one_axis) < 1e-6 < 0.1 < opencv_distortion_cost_px(two_axis)
     assert main(["calibration", "convert", str(tmp_path / "rig.json"), str(tmp_path / "rig.txt")]) == 2
-    assert "rig.txt: the target is a .json or .yaml/.yml/.xml calibration file" in capsys.readouterr().err
+    assert "rig.txt: say the target format with --to (json, opencv, dice, vic3d, matchid)" in capsys.readouterr().err
 
 
 def test_opencv_xml_files_load_and_convert_like_yaml(tmp_path, capsys):
