@@ -110,8 +110,10 @@ def test_rigid_alignment_undoes_another_frame(rigid):
     assert aligned["alignment"]["rotation_deg"] == pytest.approx(10.0, abs=1e-9)
     assert aligned["rms_um"] < 1e-6
     raw = score_state(rigid, 1, r).metrics
-    # |U| (R - I): 2 sin(5°) x 500 µm = 87 µm
+    # |U| (R - I): 2 sin(5°) x 500 µm = 87 µm, and the score says that a rigid fit would remove it
     assert raw["rms_um"] == pytest.approx(2 * np.sin(np.radians(5.0)) * 1e3 * STAGE_MM, rel=1e-6)
+    assert "one rigid fit (a 10 deg rotation) cuts the error" in raw["frame_hint"]
+    assert "frame_hint" not in aligned
 
 
 def _dice_solution(path, x, y, u, v, failed):

@@ -159,6 +159,9 @@ def score_command(args) -> int:
             line += f", u bias {m['bias_u_px']:+.4f} px rms {m['rms_u_px']:.4f}, v bias {m['bias_v_px']:+.4f} rms {m['rms_v_px']:.4f}"
         if "rms_um" in m:
             line += f", 3-D error rms {m['rms_um']:.3g} µm (max {m['max_um']:.3g})"
+        if "frame_hint" in m:
+            notes.append(f"state {state}: {m['frame_hint']}")
+            print(f"  warning: {m['frame_hint']}")
         if m["outside_points"]:
             line += f"; {m['outside_points']} points off the specimen left out"
         print(line)
