@@ -219,12 +219,21 @@ def dense_truth(dataset: Dataset, step_px: int = 1) -> dict:
         raise ValueError(f"the truth step must be a positive integer number of pixels, got {step_px!r}")
     w, h = dataset.image_size_px
     xs, ys = np.arange(0, w, step_px), np.arange(0, h, step_px)
-    X, Y = np.meshgrid(xs, ys)
-    pt = point_truth(dataset, X.ravel(), Y.ravel())
-    shape = Y.shape
-    out = {"x_px": xs.astype(np.int32), "y_px": ys.astype(np.int32), "valid": pt.valid.reshape(shape),
-           "uv_left_px": pt.uv_left_px.reshape((-1,) + shape + (2,)).astype(np.float32)}
-    if pt.X_left_mm is not None:
-        out["X_left_mm"] = pt.X_left_mm.reshape((-1,) + shape + (3,)).astype(np.float32)
-        out["xy_right_px"] = pt.xy_right_px.reshape((-1,) + shape + (2,)).astype(np.float32)
+    S = dataset.n_states
+    out = {"x_px": xs.astype(np.int32), "y_px": ys.astype(np.int32), "valid": np.zeros((ys.size, xs.size), bool),
+           "uv_left_px": np.full((S, ys.size, xs.size, 2), np.nan, np.float32)}
+    if dataset.stereo:
+        out["X_left_mm"] = np.full((S, ys.size, xs.size, 3), np.nan, np.float32)
+        out["xy_right_px"] = np.full((S, ys.size, xs.size, 2), np.nan, np.float32)
+    rows = max(1, 100_000 // xs.size)                   # blocks of rows: float64 work arrays stay ~100 MB
+    for r0 in range(0, ys.size, rows):
+        r1 = min(ys.size, r0 + rows)
+        X, Y = np.meshgrid(xs, ys[r0:r1])
+        pt = point_truth(dataset, X.ravel(), Y.ravel())
+        shape = X.shape
+        out["valid"][r0:r1] = pt.valid.reshape(shape)
+        out["uv_left_px"][:, r0:r1] = pt.uv_left_px.reshape((S,) + shape + (2,))
+        if dataset.stereo:
+            out["X_left_mm"][:, r0:r1] = pt.X_left_mm.reshape((S,) + shape + (3,))
+            out["xy_right_px"][:, r0:r1] = pt.xy_right_px.reshape((S,) + shape + (2,))
     return out
