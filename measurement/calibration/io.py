@@ -15,6 +15,10 @@ Cameras may carry two terms beyond Table 1 (:data:`EXTRA_RANGES`): the radial r^
 ``K[0, 1]`` (px). They are written only when non-zero (so files and hashes of calibrations without them are unchanged):
 in the JSON as ``<side>.extra_intrinsics = {"k3": ..., "skew": ...}``, in the YAML as ``<side>_k3``/``<side>_skew``
 (and in K/D). Loading accepts them as optional keys, range-checked like the rest.
+
+A calibration fitted with the five-term lens (``lens="brown5"``, :data:`~measurement.calibration.stepwise.LENSES`)
+says so in the JSON (``"lens": "brown5"``; absent means ``brown4``, so files of the four-term fit are unchanged) and
+stores the sigma of its k3 beside the others (``<side>.sigma.k3``).
 """
 from __future__ import annotations
 
@@ -25,7 +29,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from measurement.calibration.stepwise import _TILT_MODEL, MODELS, StereoCalibration
+from measurement.calibration.stepwise import _TILT_MODEL, LENSES, MODELS, StereoCalibration
 from measurement.camera import INTRINSIC_NAMES, MAX_TILT_DEG, TILT_MODELS, ScheimpflugCamera
 from measurement.files import atomic_write_text
 from measurement.schema import FileFormatError, Node, read_json_file, read_text_file
@@ -85,7 +89,7 @@ def _with_extra_convention(d: dict, cams) -> dict:
 def _camera_entry(cam_cal) -> dict:
     cam = cam_cal.camera
     return {"intrinsics": cam.intrinsics(), **_extra_terms(cam),
-            "sigma": {n: cam_cal.sigma[n] for n in INTRINSIC_NAMES},
+            "sigma": {n: cam_cal.sigma[n] for n in INTRINSIC_NAMES + ("k3",) if n in cam_cal.sigma},
             "tilt_model": cam.tilt_model, "width": cam.width, "height": cam.height,
             "reprojection_rms_px": cam_cal.rms_px, "per_view_rms_px": np.asarray(cam_cal.per_view_rms_px).tolist(),
             "steps": [{"step": s[0], "free": list(s[1]), "rms_px": s[2]} for s in cam_cal.steps]}
@@ -94,6 +98,7 @@ def _camera_entry(cam_cal) -> dict:
 def calibration_to_dict(cal: StereoCalibration, extra: dict | None = None) -> dict:
     """Everything a user needs to reuse or audit a calibration, as plain JSON types."""
     d = {"format": FORMAT, "convention": CONVENTION, "model": cal.model,
+         **({"lens": cal.lens} if getattr(cal, "lens", "brown4") != "brown4" else {}),
          "image_size_px": [cal.left.camera.width, cal.left.camera.height],
          "left": _camera_entry(cal.left), "right": _camera_entry(cal.right),
          "stereo": {"R_right_from_left": np.asarray(cal.R_right_from_left).tolist(),
@@ -229,6 +234,8 @@ def _rig_from_json(doc: Node) -> CalibratedRig:
     doc.mapping()
     _check_format(doc["format"])
     model = _model(doc["model"])
+    if doc.get("lens") is not None:                    # optional: written for the five-term lens fit only
+        doc["lens"].string(LENSES)
     left, right = _json_camera(doc["left"], model), _json_camera(doc["right"], model)
     size = doc.get("image_size_px")
     if size is not None:

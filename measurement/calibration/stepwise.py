@@ -5,7 +5,7 @@ Per camera:
           the board poses from homographies (Zhang, :mod:`measurement.calibration.zhang`);
   step 2  refine {fx, fy, alpha, beta, poses};
   step 3  refine {fx, fy, cx, cy, poses};
-  step 4  refine {fx, fy, k1, k2, p1, p2, poses};
+  step 4  refine {fx, fy, k1, k2, p1, p2, poses} (and k3 with ``lens="brown5"``);
   final   (``refine_all``, default) all of the model's intrinsics and the poses together (steps 2-4 alone stop
           ~0.3 px short of the least-squares solution with Table 1's distortion, see :func:`calibrate_camera`);
 then for the pair:
@@ -29,6 +29,13 @@ solution, from the full (dense, n_shared + 6 V square) normal matrix.
 
 Models: ``rmm`` (the paper), ``opencv-tilt`` (OpenCV's tau_x, tau_y order of rotations), ``pinhole``
 (conventional: no tilt, alpha = beta = 0 fixed).
+
+Lenses (:data:`LENSES`): ``brown4`` (the paper: k1 k2 p1 p2; k3 held at 0) or ``brown5`` (k1 k2 k3 p1 p2, OpenCV's
+five terms: k3, the r^6 radial term, is freed wherever k1 and k2 are, starting from 0). Whether k3 is worth it on a
+data set: :func:`compare_lens_models` (both fits on the same corners, the k3 estimate against its sigma, the RMS
+each leaves). On narrow DIC fields (corners at r ~ 0.1-0.2) r^6 is nearly a combination of r^2 and r^4, so k1 and
+k2 absorb most of a true k3 and its sigma is large: a k3 term that alone moves the image corners by pixels may
+change the fit by a few thousandths of a pixel.
 """
 from __future__ import annotations
 
@@ -47,6 +54,8 @@ MODELS = ("rmm", "opencv-tilt", "pinhole")
 _TILT_MODEL = {"rmm": "rmm", "opencv-tilt": "opencv", "pinhole": "rmm"}
 #: Least-squares solvers (module docstring): structured LM with Schur complement, or scipy's MINPACK LM.
 SOLVERS = ("schur-lm", "minpack-lm")
+#: Lens distortion models: the paper's four Brown terms, or five with the r^6 radial term k3 (module docstring).
+LENSES = ("brown4", "brown5")
 
 #: Steps 2-4 of §2.2: the intrinsics each one frees (the poses are always free).
 STEPS = (("step 2", ("fx", "fy", "alpha_deg", "beta_deg")),
@@ -56,6 +65,19 @@ STEPS = (("step 2", ("fx", "fy", "alpha_deg", "beta_deg")),
 
 class CalibrationError(ValueError):
     """The data cannot support a calibration (too few views, degenerate poses...)."""
+
+
+def _check_lens(lens: str) -> None:
+    if lens not in LENSES:
+        raise CalibrationError(f"unknown lens model {lens!r}; choose one of {', '.join(LENSES)}")
+
+
+def _with_k3(free: tuple[str, ...], lens: str) -> tuple[str, ...]:
+    """``free`` with k3 after k2 for ``brown5`` where k1 and k2 are free (unchanged for ``brown4``)."""
+    if lens != "brown5" or not ("k1" in free and "k2" in free):
+        return tuple(free)
+    i = free.index("k2") + 1
+    return tuple(free[:i]) + ("k3",) + tuple(free[i:])
 
 
 @dataclass
@@ -68,8 +90,9 @@ class CameraCalibration:
     rvecs, tvecs_mm : (V, 3) board poses ``X_cam = R(rvec) X_board + t``
     rms_px : reprojection RMS over all corners (per coordinate pair: sqrt(mean(du^2 + dv^2)))
     per_view_rms_px : (V,)
-    sigma : standard uncertainty of every intrinsic parameter (same names)
+    sigma : standard uncertainty of every intrinsic parameter (same names; ``k3`` too with ``lens="brown5"``)
     steps : [(name, free parameters, rms_px)] in the order run
+    lens : ``brown4`` or ``brown5`` (:data:`LENSES`)
     """
 
     camera: ScheimpflugCamera
@@ -79,6 +102,7 @@ class CameraCalibration:
     per_view_rms_px: np.ndarray
     sigma: dict
     steps: list = field(default_factory=list)
+    lens: str = "brown4"
 
 
 @dataclass
@@ -94,6 +118,7 @@ class StereoCalibration:
     rms_px: dict
     per_view_rms_px: dict
     steps: list = field(default_factory=list)
+    lens: str = "brown4"
 
 
 # ------------------------------------------------------------------------------------------------------------
@@ -162,7 +187,8 @@ def _refine_camera(camera, free, rvecs, tvecs, board_mm, image_points, solver):
 
 def calibrate_camera(image_points: np.ndarray, board_mm: np.ndarray, image_size: tuple[int, int], *,
                      model: str = "rmm", tilt_guess_deg: tuple[float, float] = (0.0, 0.0),
-                     name: str = "camera", refine_all: bool = True, solver: str = "schur-lm") -> CameraCalibration:
+                     name: str = "camera", refine_all: bool = True, solver: str = "schur-lm",
+                     lens: str = "brown4") -> CameraCalibration:
     """Steps 1-4 of §2.2 for one camera (then, by default, all intrinsics refined together).
 
     Parameters
@@ -179,7 +205,9 @@ def calibrate_camera(image_points: np.ndarray, board_mm: np.ndarray, image_size:
         distortion that leaves ~0.3 px RMS on exact data, and ``sigma`` would not describe a least-squares
         solution. ``False`` gives the paper's steps 1-4 alone.
     solver : ``schur-lm`` (default) or ``minpack-lm``, see the module docstring (same minimum)
+    lens : ``brown4`` (default: k1 k2 p1 p2) or ``brown5`` (also k3, freed with k1 and k2, from 0)
     """
+    _check_lens(lens)
     if model not in MODELS:
         raise CalibrationError(f"unknown camera model {model!r}; choose one of {', '.join(MODELS)}")
     if solver not in SOLVERS:
@@ -206,22 +234,26 @@ def calibrate_camera(image_points: np.ndarray, board_mm: np.ndarray, image_size:
     for step_name, free in STEPS:
         if model == "pinhole":
             free = tuple(n for n in free if n not in ("alpha_deg", "beta_deg"))
+        free = _with_k3(free, lens)
         camera, rvecs, tvecs, _ = _refine_camera(camera, free, rvecs, tvecs, board_mm, image_points, solver)
         steps.append((step_name, free, _rms(project_views(camera, rvecs, tvecs, board_mm) - image_points)))
     if refine_all:
-        free = _free_intrinsics(model)
+        free = _free_intrinsics(model, lens)
         camera, rvecs, tvecs, _ = _refine_camera(camera, free, rvecs, tvecs, board_mm, image_points, solver)
         steps.append(("final", free, _rms(project_views(camera, rvecs, tvecs, board_mm) - image_points)))
-    return _finish_camera(camera, rvecs, tvecs, board_mm, image_points, model, steps)
+    return _finish_camera(camera, rvecs, tvecs, board_mm, image_points, model, steps, lens)
 
 
-def _free_intrinsics(model: str) -> tuple[str, ...]:
-    return tuple(n for n in INTRINSIC_NAMES if not (model == "pinhole" and n in ("alpha_deg", "beta_deg")))
+def _free_intrinsics(model: str, lens: str = "brown4") -> tuple[str, ...]:
+    """The intrinsics ``model`` and ``lens`` estimate: Table 1's ten (no tilt for ``pinhole``), k3 after k2 for
+    ``brown5``."""
+    return _with_k3(tuple(n for n in INTRINSIC_NAMES if not (model == "pinhole" and n in ("alpha_deg", "beta_deg"))),
+                    lens)
 
 
-def _finish_camera(camera, rvecs, tvecs, board_mm, image_points, model, steps) -> CameraCalibration:
+def _finish_camera(camera, rvecs, tvecs, board_mm, image_points, model, steps, lens="brown4") -> CameraCalibration:
     """Residual statistics and parameter uncertainties (Jacobian over all intrinsics and poses)."""
-    free = _free_intrinsics(model)
+    free = _free_intrinsics(model, lens)
     V, N = image_points.shape[:2]
     x = np.concatenate([[getattr(camera, n) for n in free], np.hstack([rvecs, tvecs]).ravel()])
     k = len(free)
@@ -234,7 +266,7 @@ def _finish_camera(camera, rvecs, tvecs, board_mm, image_points, model, steps) -
         sigma.setdefault(n, 0.0)          # held fixed by the model
     res_uv = r.reshape(V, N, 2)
     per_view = np.sqrt(np.mean(np.sum(res_uv ** 2, axis=-1), axis=1))
-    return CameraCalibration(camera, rvecs, tvecs, _rms(res_uv), per_view, sigma, steps)
+    return CameraCalibration(camera, rvecs, tvecs, _rms(res_uv), per_view, sigma, steps, lens)
 
 
 def _mono_rows(n_views, n_points):
@@ -255,9 +287,17 @@ def _solve(residual, x0, n_shared, view_rows, solver):
     ``schur-lm``: :func:`measurement.calibration.lm.levenberg_marquardt` with tolerances 1e-12: two decades
     tighter than the MINPACK call below, so that where it stops matters less; a solve costs ~5-50 Jacobians
     either way. ``minpack-lm``: scipy's MINPACK LM on the dense Jacobian (the solver before the structured
-    one). A point at or behind a camera projects to NaN: it gets a huge residual, so both reject the step.
+    one). A point at or behind a camera projects to NaN: it gets a huge residual, so both reject the step; so does
+    a trial step the camera refuses (a tilt beyond +-45 deg, a focal length <= 0), which would otherwise end the solve.
     """
-    fn = lambda x: np.nan_to_num(residual(x), nan=1e6)  # noqa: E731
+    n_residuals = len(residual(x0))
+
+    def fn(x):
+        try:
+            r = residual(x)
+        except ValueError:                         # ScheimpflugCamera's range checks: reject the step
+            return np.full(n_residuals, 1e6)
+        return np.nan_to_num(r, nan=1e6)
 
     def jacobian(x):
         return block_fd_jacobian(fn, x, n_shared, view_rows)
@@ -312,20 +352,23 @@ def calibrate_stereo(points_left: np.ndarray, points_right: np.ndarray, board_mm
                      tilt_guess_left_deg: tuple[float, float] = (0.0, 0.0),
                      tilt_guess_right_deg: tuple[float, float] = (0.0, 0.0), joint: bool = True,
                      image_size_right: tuple[int, int] | None = None,
-                     solver: str = "schur-lm") -> StereoCalibration:
+                     solver: str = "schur-lm", lens: str = "brown4") -> StereoCalibration:
     """Steps 1-5 of §2.2 (and the optional joint refinement) for a stereo pair.
 
     ``points_left``/``points_right``: (V, N, 2) corners of the same V board poses seen by each camera.
     ``solver``: ``schur-lm`` (default) or ``minpack-lm``, see the module docstring (same minimum).
+    ``lens``: ``brown4`` (default: k1 k2 p1 p2) or ``brown5`` (k1 k2 k3 p1 p2: k3 freed with k1 and k2, from 0; its
+    sigma is ``left.sigma["k3"]``/``right.sigma["k3"]``); whether k3 is worth it: :func:`compare_lens_models`.
     """
+    _check_lens(lens)
     points_left = np.asarray(points_left, float)
     points_right = np.asarray(points_right, float)
     if points_left.shape != points_right.shape:
         raise CalibrationError(f"left and right corner arrays differ: {points_left.shape} vs {points_right.shape}")
     cal_l = calibrate_camera(points_left, board_mm, image_size, model=model, tilt_guess_deg=tilt_guess_left_deg,
-                             name="left camera", solver=solver)
+                             name="left camera", solver=solver, lens=lens)
     cal_r = calibrate_camera(points_right, board_mm, image_size_right or image_size, model=model,
-                             tilt_guess_deg=tilt_guess_right_deg, name="right camera", solver=solver)
+                             tilt_guess_deg=tilt_guess_right_deg, name="right camera", solver=solver, lens=lens)
     R0, T0 = _stereo_init(cal_l, cal_r)
     V, N = points_left.shape[:2]
     steps = [("left " + s[0], s[1], s[2]) for s in cal_l.steps] + [("right " + s[0], s[1], s[2]) for s in cal_r.steps]
@@ -347,12 +390,12 @@ def calibrate_stereo(points_left: np.ndarray, points_right: np.ndarray, board_mm
     r = fn(x)
     steps.append(("step 5", ("stereo R, T", "left poses"), _rms(r.reshape(-1, 2))))
     if joint:
-        names = (_free_intrinsics(model), _free_intrinsics(model))
+        names = (_free_intrinsics(model, lens), _free_intrinsics(model, lens))
         left, right, R, T, poses, fn, x, k = solve(left, right, names, R, T, poses)
         r = fn(x)
         steps.append(("joint", ("all intrinsics", "stereo R, T", "left poses"), _rms(r.reshape(-1, 2))))
     # Uncertainties of everything at the solution (all intrinsics of both cameras free).
-    names = (_free_intrinsics(model), _free_intrinsics(model))
+    names = (_free_intrinsics(model, lens), _free_intrinsics(model, lens))
     fn = _stereo_residual_fn(left, right, board_mm, points_left, points_right, names)
     x = np.concatenate([[getattr(left, n) for n in names[0]], [getattr(right, n) for n in names[1]],
                         Rotation.from_matrix(R).as_rotvec(), T, poses.ravel()])
@@ -373,11 +416,94 @@ def calibrate_stereo(points_left: np.ndarray, points_right: np.ndarray, board_mm
     rr = Rotation.from_matrix(np.einsum("ij,vjk->vik", R, Rl)).as_rotvec()
     tr = poses[:, 3:] @ R.T + T
     out_l = CameraCalibration(left, poses[:, :3], poses[:, 3:], _rms(el),
-                              np.sqrt(np.mean(np.sum(el ** 2, -1), 1)), sig_l, cal_l.steps)
-    out_r = CameraCalibration(right, rr, tr, _rms(er), np.sqrt(np.mean(np.sum(er ** 2, -1), 1)), sig_r, cal_r.steps)
+                              np.sqrt(np.mean(np.sum(el ** 2, -1), 1)), sig_l, cal_l.steps, lens)
+    out_r = CameraCalibration(right, rr, tr, _rms(er), np.sqrt(np.mean(np.sum(er ** 2, -1), 1)), sig_r, cal_r.steps,
+                              lens)
     if out_l.rms_px > 1.0 or out_r.rms_px > 1.0:
         warnings.warn(f"large reprojection error after calibration: left {out_l.rms_px:.3f} px, right "
                       f"{out_r.rms_px:.3f} px (wrong corner order, wrong square size or a bad view?)", stacklevel=2)
     return StereoCalibration(model, out_l, out_r, R, np.asarray(T, float), sigma_stereo,
                              {"left": out_l.rms_px, "right": out_r.rms_px},
-                             {"left": out_l.per_view_rms_px, "right": out_r.per_view_rms_px}, steps)
+                             {"left": out_l.per_view_rms_px, "right": out_r.per_view_rms_px}, steps, lens)
+
+
+# ------------------------------------------------------------------------------------------------------------
+def k3_corner_effect_px(camera: ScheimpflugCamera) -> float:
+    """Largest shift (px) of the four image corners due to ``camera``'s k3 term alone: the corner pixels' rays
+    (``camera.backproject``) projected with and without the k3 r^6 term, every other parameter as is."""
+    w, h = camera.width, camera.height
+    corners = np.array([[0.0, 0.0], [w - 1.0, 0.0], [0.0, h - 1.0], [w - 1.0, h - 1.0]])
+    xy = camera.backproject(corners)
+    shift = np.linalg.norm(camera.project_normalized(xy) - replace(camera, k3=0.0).project_normalized(xy), axis=1)
+    return float(np.nanmax(shift)) if np.any(np.isfinite(shift)) else float("nan")
+
+
+#: |k3| / sigma(k3) at or above which k3 counts as supported by the data (the usual 3-sigma rule).
+K3_SIGNIFICANCE = 3.0
+
+
+def compare_lens_models(points_left: np.ndarray, points_right: np.ndarray, board_mm: np.ndarray,
+                        image_size: tuple[int, int], *, brown4: StereoCalibration | None = None,
+                        brown5: StereoCalibration | None = None, z_threshold: float = K3_SIGNIFICANCE,
+                        **calibrate_kwargs) -> dict:
+    """Is the r^6 term k3 worth fitting on these corners? ``brown5`` against ``brown4``, on the same data.
+
+    Calibrates the pair with each lens model (:func:`calibrate_stereo` with ``calibrate_kwargs``; a calibration
+    passed as ``brown4``/``brown5`` is used as is, it must come from the same corners) and returns::
+
+        {"rms_px": {"brown4": {"left", "right"}, "brown5": {...}},
+         "cameras": {side: {"k3", "sigma_k3", "z" (= |k3| / sigma), "rms_brown4_px", "rms_brown5_px",
+                            "gain_px" (= sqrt(rms4^2 - rms5^2): the RMS that k3 explains and brown4 cannot absorb),
+                            "corner_effect_px" (:func:`k3_corner_effect_px` of the brown5 camera)}},
+         "chi2_drop": (SSR4 - SSR5) / s5^2 over both cameras (~2 when k3 = 0 truly: two added parameters),
+         "verdict": "brown5" or "brown4", "reason": str}
+
+    The verdict is ``brown5`` when k3 is significant (``z >= z_threshold``) in either camera. The corner effect
+    is the size of the k3 term itself; on narrow fields k1 and k2 absorb most of it (see the module docstring), so
+    ``gain_px`` and ``z``, not the corner effect, say whether the data need k3.
+    """
+    fits = {"brown4": brown4, "brown5": brown5}
+    for lens, cal in fits.items():
+        if cal is None:
+            fits[lens] = calibrate_stereo(points_left, points_right, board_mm, image_size, lens=lens,
+                                          **calibrate_kwargs)
+        elif cal.lens != lens:
+            raise ValueError(f"the calibration passed as {lens} was made with lens {cal.lens!r}")
+    c4, c5 = fits["brown4"], fits["brown5"]
+    V, N = np.asarray(points_left).shape[:2]
+    cameras = {}
+    for side in ("left", "right"):
+        r4, r5 = c4.rms_px[side], c5.rms_px[side]
+        cam5 = getattr(c5, side)
+        k3, sk3 = float(cam5.camera.k3), float(cam5.sigma["k3"])
+        z = abs(k3) / sk3 if sk3 > 0 else float("nan")
+        cameras[side] = {"k3": k3, "sigma_k3": sk3, "z": float(z), "rms_brown4_px": float(r4),
+                         "rms_brown5_px": float(r5), "gain_px": float(np.sqrt(max(r4 ** 2 - r5 ** 2, 0.0))),
+                         "corner_effect_px": k3_corner_effect_px(cam5.camera)}
+    # residual sums of squares of the two fits and the residual variance of the larger model
+    ssr = {lens: sum(c.rms_px[s] ** 2 * V * N for s in ("left", "right")) for lens, c in fits.items()}
+    n_intr = len(_free_intrinsics(c5.model, "brown5"))
+    dof = 4 * V * N - (2 * n_intr + 6 + 6 * V)
+    chi2_drop = (ssr["brown4"] - ssr["brown5"]) / (ssr["brown5"] / max(dof, 1))
+    supported = [s for s in ("left", "right") if cameras[s]["z"] >= z_threshold]
+    parts = [f"{s} k3 = {cameras[s]['k3']:.4g} ± {cameras[s]['sigma_k3']:.2g} ({cameras[s]['z']:.1f} sigma)"
+             for s in ("left", "right")]
+    if supported:
+        verdict = "brown5"
+        reason = (f"k3 is significant (>= {z_threshold:g} sigma) in the {' and '.join(supported)} camera"
+                  f"{'s' if len(supported) > 1 else ''}: {'; '.join(parts)}")
+    else:
+        verdict = "brown4"
+        reason = f"k3 is not significant (< {z_threshold:g} sigma in both cameras): {'; '.join(parts)}"
+    return {"rms_px": {lens: dict(c.rms_px) for lens, c in fits.items()}, "cameras": cameras,
+            "chi2_drop": float(chi2_drop), "verdict": verdict, "reason": reason}
+
+
+def lens_comparison_lines(comparison: dict) -> list[str]:
+    """:func:`compare_lens_models`'s result in two lines of text (for the command line)."""
+    c = comparison["cameras"]
+    rms = "; ".join(f"{s} {c[s]['rms_brown4_px']:.4f} -> {c[s]['rms_brown5_px']:.4f} px (k3 explains "
+                    f"{c[s]['gain_px']:.4f} px RMS, its term alone moves the corners up to "
+                    f"{c[s]['corner_effect_px']:.2f} px)" for s in ("left", "right"))
+    return [f"  lens brown4 -> brown5: reprojection RMS {rms}; chi2 drop {comparison['chi2_drop']:.1f} (~2 if k3 = 0)",
+            f"  verdict: {comparison['verdict']}: {comparison['reason']}"]
