@@ -248,9 +248,9 @@ class Node:
 
 
 # --------------------------------------------------------------------------------------------------------
-def read_text_file(path: str | Path, what: str = "file", *, max_bytes: int | None = None) -> str:
-    """The UTF-8 text of ``path``; FileFormatError if it is missing, a folder, empty, binary, not UTF-8 or
-    larger than ``max_bytes``."""
+def read_file_bytes(path: str | Path, what: str = "file", *, max_bytes: int | None = None) -> bytes:
+    """The bytes of a text file ``path``; FileFormatError if it is missing, a folder, empty, binary (NUL bytes)
+    or larger than ``max_bytes``."""
     path = Path(path)
     if not path.exists():
         raise FileFormatError(path, "", f"{what} does not exist")
@@ -264,6 +264,13 @@ def read_text_file(path: str | Path, what: str = "file", *, max_bytes: int | Non
         raise FileFormatError(path, "", f"{what} is empty")
     if b"\x00" in data:
         raise FileFormatError(path, "", f"{what} contains NUL bytes: it is not a text file")
+    return data
+
+
+def read_text_file(path: str | Path, what: str = "file", *, max_bytes: int | None = None) -> str:
+    """The UTF-8 text of ``path``; FileFormatError if it is missing, a folder, empty, binary, not UTF-8 or
+    larger than ``max_bytes``."""
+    data = read_file_bytes(path, what, max_bytes=max_bytes)
     try:
         return data.decode("utf-8")
     except UnicodeDecodeError as err:

@@ -211,20 +211,9 @@ _ENCODINGS = {"utf-8": "utf-8", "utf8": "utf-8", "iso-8859-1": "latin-1", "latin
 
 def read_bytes(path, what: str) -> bytes:
     """The bytes of ``path``; FileFormatError if missing, not a file, empty, too large or binary."""
-    path = Path(path)
-    if not path.exists():
-        raise FileFormatError(path, "", f"{what} does not exist")
-    if not path.is_file():
-        raise FileFormatError(path, "", f"{what} is not a regular file")
-    if path.stat().st_size > MAX_FILE_BYTES:
-        raise FileFormatError(path, "", f"{what} is {path.stat().st_size} bytes, more than the {MAX_FILE_BYTES} a "
-                                        f"calibration file can sensibly hold")
-    data = path.read_bytes()
-    if not data.strip():
-        raise FileFormatError(path, "", f"{what} is empty")
-    if b"\x00" in data:
-        raise FileFormatError(path, "", f"{what} contains NUL bytes: it is not a text file")
-    return data
+    from measurement.schema import read_file_bytes
+
+    return read_file_bytes(path, what, max_bytes=MAX_FILE_BYTES)
 
 
 def decode_xml(data: bytes, path) -> str:
