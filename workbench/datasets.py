@@ -237,3 +237,37 @@ def dense_truth(dataset: Dataset, step_px: int = 1) -> dict:
             out["X_left_mm"][:, r0:r1] = pt.X_left_mm.reshape((S,) + shape + (3,))
             out["xy_right_px"][:, r0:r1] = pt.xy_right_px.reshape((S,) + shape + (2,))
     return out
+
+
+def roi_polygon_px(valid: np.ndarray, x_px: np.ndarray, y_px: np.ndarray, margin_px: int) -> np.ndarray:
+    """A polygon (M, 2) px around the region where the truth is valid, shrunk by ``margin_px``.
+
+    ``valid`` is the (H', W') mask of :func:`workbench.datasets.dense_truth` on the pixels ``x_px`` x ``y_px``.
+    The largest connected region is kept, eroded so that subsets centred inside it see only the specimen.
+    """
+    import cv2
+
+    step = int(x_px[1] - x_px[0]) if len(x_px) > 1 else 1
+    mask = valid.astype(np.uint8)
+    r = max(1, int(np.ceil(margin_px / step)))
+    mask = cv2.erode(mask, np.ones((2 * r + 1, 2 * r + 1), np.uint8), borderValue=0)
+    contours, _ = cv2.findContours(mask, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
+    if not contours:
+        raise ValueError(f"no region of the reference image sees the specimen {margin_px} px from its edge")
+    contour = max(contours, key=cv2.contourArea)
+    poly = cv2.approxPolyDP(contour, 1.0, True).reshape(-1, 2).astype(float)
+    return np.column_stack([x_px[0] + poly[:, 0] * step, y_px[0] + poly[:, 1] * step])
+
+
+def subset_roi_xyxy_px(dataset: Dataset, subset_px: int) -> tuple[int, int, int, int]:
+    """Inclusive bounds (x0, y0, x1, y1) of subset centres whose subsets of ``subset_px`` see the specimen (and,
+    with the deformed subset's interpolation stencil, stay inside the image): the ROI an engine is given."""
+    w, h = dataset.image_size_px
+    margin = subset_px // 2 + 8
+    if not dataset.stereo:
+        return margin, margin, w - 1 - margin, h - 1 - margin
+    dense = dense_truth(dataset, 4)
+    poly = roi_polygon_px(dense["valid"], dense["x_px"], dense["y_px"], margin + 4)
+    x0, y0 = np.ceil(poly.min(0)).astype(int)
+    x1, y1 = np.floor(poly.max(0)).astype(int)
+    return int(x0), int(y0), int(x1), int(y1)

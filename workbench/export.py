@@ -35,7 +35,7 @@ from pathlib import Path
 import numpy as np
 
 from measurement.files import atomic_write_bytes, atomic_write_text, atomic_writer
-from workbench.datasets import Dataset, dense_truth, point_truth, true_rig
+from workbench.datasets import Dataset, dense_truth, point_truth, roi_polygon_px, true_rig
 
 FORMATS = ("native", "dice", "vic3d", "matchid", "opencv")
 #: Calibration file name per format.
@@ -100,26 +100,6 @@ def _write_image(src: Path, dst: Path) -> None:
     else:
         from measurement.files import atomic_write_image
         atomic_write_image(dst, image)
-
-
-def roi_polygon_px(valid: np.ndarray, x_px: np.ndarray, y_px: np.ndarray, margin_px: int) -> np.ndarray:
-    """A polygon (M, 2) px around the region where the truth is valid, shrunk by ``margin_px``.
-
-    ``valid`` is the (H', W') mask of :func:`workbench.datasets.dense_truth` on the pixels ``x_px`` x ``y_px``.
-    The largest connected region is kept, eroded so that subsets centred inside it see only the specimen.
-    """
-    import cv2
-
-    step = int(x_px[1] - x_px[0]) if len(x_px) > 1 else 1
-    mask = valid.astype(np.uint8)
-    r = max(1, int(np.ceil(margin_px / step)))
-    mask = cv2.erode(mask, np.ones((2 * r + 1, 2 * r + 1), np.uint8), borderValue=0)
-    contours, _ = cv2.findContours(mask, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
-    if not contours:
-        raise ValueError(f"no region of the reference image sees the specimen {margin_px} px from its edge")
-    contour = max(contours, key=cv2.contourArea)
-    poly = cv2.approxPolyDP(contour, 1.0, True).reshape(-1, 2).astype(float)
-    return np.column_stack([x_px[0] + poly[:, 0] * step, y_px[0] + poly[:, 1] * step])
 
 
 def _inside(poly: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:

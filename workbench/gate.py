@@ -93,10 +93,10 @@ def _pair_dataset(scenario: Scenario, store):
 def _engine_result(engine, dataset, instrument: Instrument, workdir: Path, options: dict):
     from workbench.engines import run_engine
     from workbench.results import read_result
-    from workbench.tool_cli import engine_roi
+    from workbench.datasets import subset_roi_xyxy_px
 
     out = workdir / f"{dataset.folder.name}.csv"
-    roi = engine_roi(dataset, instrument.subset_px)
+    roi = subset_roi_xyxy_px(dataset, instrument.subset_px)
     run_engine(engine, dataset.images[0]["left"], dataset.images[1]["left"], out, subset_px=instrument.subset_px,
                step_px=instrument.step_px, roi_xyxy_px=roi, options=options if engine.kind == "python" else None)
     return read_result(out, engine.result_format or "native")

@@ -82,22 +82,6 @@ def export_command(args) -> int:
     return 0
 
 
-def engine_roi(dataset, subset_px: int) -> tuple[int, int, int, int]:
-    """Bounding box (inclusive) of the region of interest where subsets of ``subset_px`` see the specimen."""
-    from workbench.datasets import dense_truth
-    from workbench.export import roi_polygon_px
-
-    w, h = dataset.image_size_px
-    margin = subset_px // 2 + 8          # the deformed subset and its interpolation stencil stay in the image
-    if not dataset.stereo:
-        return margin, margin, w - 1 - margin, h - 1 - margin
-    dense = dense_truth(dataset, 4)
-    poly = roi_polygon_px(dense["valid"], dense["x_px"], dense["y_px"], margin + 4)
-    x0, y0 = np.ceil(poly.min(0)).astype(int)
-    x1, y1 = np.floor(poly.max(0)).astype(int)
-    return int(x0), int(y0), int(x1), int(y1)
-
-
 def _states_of(dataset, paths: list[Path], state: int | None) -> list[tuple[int, Path]]:
     from workbench.results import state_of
 
@@ -120,7 +104,7 @@ def _states_of(dataset, paths: list[Path], state: int | None) -> list[tuple[int,
 
 
 def score_command(args) -> int:
-    from workbench.datasets import open_dataset
+    from workbench.datasets import open_dataset, subset_roi_xyxy_px
     from workbench.engines import parse_engine, run_engine
     from workbench.results import read_result
     from workbench.scoring import score_state, write_score_report
@@ -134,7 +118,7 @@ def score_command(args) -> int:
             raise ValueError("give result files or --engine, not both")
         engine = parse_engine(args.engine)
         fmt = fmt or engine.result_format or "native"
-        roi = engine_roi(dataset, args.subset)
+        roi = subset_roi_xyxy_px(dataset, args.subset)
         runs = args.out / "engine"
         for k in range(1, dataset.n_states):
             target = runs / f"result_{k:02d}.csv"
