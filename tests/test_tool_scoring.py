@@ -223,6 +223,7 @@ def test_dice_export_is_a_complete_dice_input(pair, tmp_path):
     deformed = [p.get("name") for p in ET.parse(out / "input.xml").getroot().find("ParameterList").iter("Parameter")]
     assert (out / deformed[0]).is_file()
     assert "begin region_of_interest" in (out / "subset_defs.txt").read_text()
+    assert "dice -i input.xml" in (out / "README.md").read_text()
     with np.load(out / "truth" / "truth_reference.npz") as z:
         assert z["uv_left_px"].shape == (2, 160, 160, 2)
         assert float(z["uv_left_px"][1, 50, 50, 0]) == pytest.approx(0.25)

@@ -182,6 +182,35 @@ def opencv_kd_cost_px(cam, n: int = 41) -> tuple[float, float]:
     return float(d.mean()), float(d.max())
 
 
+_RUN = {"dice": "cd into this folder and run `dice -i input.xml` (results in `results/DICe_solution_*.txt`); then\n"
+               "`workbench score {dataset} results/DICe_solution_*.txt --format dice --out score`",
+        "native": "`workbench stereo --calib calibration.json ...` or `workbench dic ...`; then `workbench score {dataset} "
+                  "RESULT.csv --out score`",
+        "opencv": "run your tool on left/ and right/ with stereo.yaml; then `workbench score {dataset} RESULT_*.csv "
+                  "--format csv --columns x=..,y=..,u=..,v=.. --out score`",
+        "vic3d": "open the images and calibration.cal in VIC-3D; export its results as CSV and score them with "
+                 "`workbench score {dataset} RESULT_*.csv --format csv --columns ... --out score`",
+        "matchid": "load the images and calibration.caldat in MatchID; export its results as CSV and score them with "
+                   "`workbench score {dataset} RESULT_*.csv --format csv --columns ... --out score`"}
+
+
+def _readme(dataset: Dataset, fmt: str, record: dict) -> str:
+    """What is in the export folder and how to run and score the tool on it."""
+    lines = [f"# {dataset.folder.name} exported for {fmt}", "",
+             f"{dataset.n_states} states ({', '.join(dataset.labels)}); state 0 is the reference. "
+             f"Written by `workbench export` ({record['convention']}).", "",
+             "Run: " + _RUN[fmt].format(dataset=dataset.folder), "",
+             "Truth: `truth/truth_reference.npz` (per pixel of the left reference image: `valid`, `uv_left_px` "
+             "(state, row, column, 2), and for stereo `X_left_mm`, `xy_right_px`; NaN off the specimen), "
+             "`truth/points.csv` (a grid over the ROI, every state), `truth/roi_polygon_px.csv`.", ""]
+    if record["calibration"]:
+        lines.append(f"Calibration: `{record['calibration']['file']}`:")
+        lines += [f"- {c['camera']}: {c['model']}, {c['mean_px']:.3g} px mean / {c['max_px']:.3g} px max from the "
+                  "true camera over the image" for c in record["calibration"]["cameras"]]
+    lines += [f"- note: {n}" for n in record["notes"]]
+    return "\n".join(lines) + "\n"
+
+
 def _save_calibration(fmt: str, rig, path: Path, frame_rotation: bool = False) -> list[dict]:
     """Write the rig in ``fmt``; returns per camera ``{"camera", "model", "mean_px", "max_px", "notes"}``.
 
@@ -280,6 +309,7 @@ def _export_into(dataset: Dataset, fmt: str, folder: Path, settings: ExportSetti
     if fmt == "dice":
         for name, text in _dice_files(dataset, names, poly, settings).items():
             atomic_write_text(folder / name, text)
+    atomic_write_text(folder / "README.md", _readme(dataset, fmt, record))
     log(f"  truth: truth/truth_reference.npz (every {settings.truth_step_px} px), truth/points.csv "
         f"({pt.x_px.size} points x {dataset.n_states} states)")
     return record
