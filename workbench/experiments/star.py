@@ -60,6 +60,8 @@ import argparse
 import io
 import json
 import math
+import shutil
+import tempfile
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -495,10 +497,14 @@ def star_report(out_dir: str | Path, subsets=(17, 33, 65), orders=(1, 2), scale:
             if engine_spec is not None:
                 from workbench.engines import array_engine, parse_engine
 
-                spec = parse_engine(engine_spec)
-                (out_dir / "engine").mkdir(parents=True, exist_ok=True)
-                engine = array_engine(spec, out_dir / "engine", {"order": order})
-            run = run_star(subset, order, images=images, step_px=step_px, engine=engine)
+                # the engine's image and result files are scratch: only the report stays in out_dir
+                scratch = Path(tempfile.mkdtemp(prefix="star-engine-"))
+                engine = array_engine(parse_engine(engine_spec), scratch, {"order": order})
+            try:
+                run = run_star(subset, order, images=images, step_px=step_px, engine=engine)
+            finally:
+                if engine is not None:
+                    shutil.rmtree(scratch, ignore_errors=True)
             runs.append(run)
             if progress:
                 print(f"subset {subset} px, order {order}: l10 {run['l10_px']:.1f} px (theory "
@@ -553,7 +559,9 @@ def _report_markdown(case: dict, runs: list[dict]) -> str:
              f"V = {case['amplitude_px']:g} cos(2 pi (Y - {case['centre_y_px']:g}) / p(X)) px, p from "
              f"{case['periods_px'][0]:g} to {case['periods_px'][1]:g} px across the width; Gaussian speckle "
              f"{case['speckle_size_px']:g} px, read noise {case['noise_grey']:g} grey + 8-bit quantisation, seed "
-             f"{case['seed']}. Engine: this project's IC-GN, biquintic, zero initial guess.", "",
+             f"{case['seed']}. Engine: " + (f"`{runs[0]['engine']}` (through the engine interface)"
+                                            if runs and not str(runs[0].get("engine", "")).startswith("measurement.dic")
+                                            else "this project's IC-GN, biquintic, zero initial guess") + ".", "",
              "l10: period at which measured / imposed amplitude first reaches 0.9 from short periods (bands of "
              "4 % of the period wide, near the crest line); theory: the subset's least-squares transfer function "
              "(mean of the sinusoid over the subset for order 1, constant term of a quadratic fit for order 2). "
