@@ -539,14 +539,16 @@ def _reproduce_dic_accuracy(args) -> int:
     return 0
 
 
-def _load_rig(path: Path):
-    from measurement.calibration.io import load_calibration, load_opencv_yaml
+def _load_rig(path: Path, image_size_px: tuple[int, int] | None = None):
+    """Any calibration file the instrument reads (JSON, OpenCV YAML/XML, DICe, VIC-3D, MatchID: detected from the
+    content); ``image_size_px`` for a format that holds none (MatchID)."""
+    from measurement.calibration.formats import load_any_calibration
 
     if path.is_dir():
         raise ValueError(f"--calib {path} is a directory, not a calibration file")
     if not path.is_file():
         raise ValueError(f"calibration file not found: {path}")
-    return load_opencv_yaml(path) if path.suffix.lower() in (".yaml", ".yml", ".xml") else load_calibration(path)
+    return load_any_calibration(path, image_size_px=image_size_px)
 
 
 def _check_against_calibration(image: np.ndarray, camera, what: str) -> None:
@@ -561,8 +563,9 @@ def _stereo(args) -> int:
     from workbench.manifest import complete_folder, prepare_folder
 
     # Everything is checked before the first match and the first write.
-    rig = _load_rig(args.calib)
     _input_file(args.left_ref, "--left-ref")
+    size = tuple(reversed(_read_image(args.left_ref, "--left-ref").shape))
+    rig = _load_rig(args.calib, size)
     _input_file(args.right_ref, "--right-ref")
     if _resolved(args.left_ref) == _resolved(args.right_ref):
         raise ValueError(f"--left-ref and --right-ref are the same file ({args.left_ref})")
