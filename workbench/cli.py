@@ -564,14 +564,13 @@ def _stereo(args) -> int:
 
     # Everything is checked before the first match and the first write.
     _input_file(args.left_ref, "--left-ref")
-    size = tuple(reversed(_read_image(args.left_ref, "--left-ref").shape))
-    rig = _load_rig(args.calib, size)
+    left_ref = _read_image(args.left_ref, "--left-ref")     # its size is what a MatchID file lacks
+    rig = _load_rig(args.calib, (left_ref.shape[1], left_ref.shape[0]))
     _input_file(args.right_ref, "--right-ref")
     if _resolved(args.left_ref) == _resolved(args.right_ref):
         raise ValueError(f"--left-ref and --right-ref are the same file ({args.left_ref})")
     left_files, right_files = _paired_globs(args.left, args.right)
     _output_folder(args.out)
-    left_ref = _read_image(args.left_ref, "--left-ref")
     right_ref = _read_image(args.right_ref, "--right-ref")
     _check_against_calibration(left_ref, rig.left, f"--left-ref {args.left_ref}")
     _check_against_calibration(right_ref, rig.right, f"--right-ref {args.right_ref}")
