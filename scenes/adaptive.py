@@ -1,0 +1,384 @@
+"""Cropped, adaptively sampled renders: samples only where they change the image, with a measured MC noise.
+
+A fixed 64 spp over the whole sensor spends most samples where they do nothing: on background pixels that no
+surface can reach (they are exactly 0 radiance) and, on a checkerboard, inside squares whose pixels are
+constant. This renderer uses the same Mitsuba scene, Embree intersection, sensor plugin (:mod:`scenes.camera`)
+and emitter textures as :func:`scenes.render.render_view`, but its own sample loop instead of Mitsuba's film:
+
+1. **Crop** to the projected bounding box of the surfaces (truth side's own projection, widened by the
+   thin lens' blur circle and a margin). Pixels outside are background, 0. A lit pixel on the crop's edge
+   means the box was too small: the crop grows and the view is rendered again.
+2. **Pilot**: one stratified batch of ``pilot_side**2`` samples per pixel. The spread of its single samples
+   (their standard deviation sigma: how much the pixel's footprint varies; 0 inside a checkerboard square)
+   predicts the error of a stratified mean of ``side**2`` samples as ``sigma * side**-1.5`` (a straight
+   edge through the pixel; a smooth texture falls faster, as ``side**-2``). A pixel whose samples agree but
+   whose neighbours vary (an edge clips its corner) takes its neighbours' largest spread.
+3. **Refine**: each pixel whose pilot predicts more than ``target_mc_grey`` gets one fresh stratified batch
+   of the smallest ``side**2`` in ``sides`` that meets it; its pilot samples are discarded, so the value
+   does not depend on the decision made from them (no adaptive-sampling bias).
+4. **Measure**: on a random ``check_fraction`` of the lit pixels, a second independent batch at the same
+   stratification gives the realised MC variance: ``mc_rms_grey`` in the result is measured, not predicted.
+
+Stratification: sample ``k`` of an ``s x s`` batch jitters inside film stratum ``(k mod s, k div s)``; the
+thin lens' aperture sample is stratified too, through a per-pixel permutation of the strata. Random numbers
+are TEA hashes of (pixel, sample, seed), so a pixel's value does not depend on which pixels are rendered
+with it or how they are chunked: same seed, same image.
+
+The seed and sizes enter the traced kernels as opaque values, so Dr.Jit compiles one kernel per camera and
+stratification and reuses it for every view, state and seed.
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import asdict, dataclass, field
+
+import numpy as np
+
+from scenes.backend import dr, mi
+from scenes.camera import SensorSpec, sensor_dict
+from scenes.integrator import PLUGIN_NAME as INTEGRATOR
+from scenes.surfaces import TexturedSurface
+
+#: Largest number of samples traced in one kernel launch (memory: ~40 bytes per lane).
+MAX_LANES = 1 << 25
+
+
+@dataclass(frozen=True)
+class AdaptiveSettings:
+    """How :func:`render_views_adaptive` spends its samples.
+
+    target_mc_grey : Monte-Carlo standard error a pixel should stay below, grey levels (of ``exposure_grey``)
+    pilot_side : the pilot traces ``pilot_side**2`` samples per pixel
+    sides : stratification grids a refined pixel can get (``side**2`` samples), ascending
+    check_fraction : share of lit pixels given a second batch to measure the realised MC noise
+    margin_px : margin around the projected bounding box of the surfaces, px
+    crop : render only the projected bounding box (False: the whole sensor)
+    """
+
+    target_mc_grey: float = 0.3
+    pilot_side: int = 3
+    sides: tuple[int, ...] = (4, 5, 6, 8, 11, 16, 23)
+    check_fraction: float = 0.03
+    margin_px: int = 3
+    crop: bool = True
+
+    def __post_init__(self):
+        if not (self.target_mc_grey > 0 and np.isfinite(self.target_mc_grey)):
+            raise ValueError(f"target_mc_grey must be a positive number, got {self.target_mc_grey}")
+        if self.pilot_side < 1 or not self.sides or any(s <= self.pilot_side for s in self.sides) \
+                or list(self.sides) != sorted(set(self.sides)):
+            raise ValueError(f"sides must ascend above pilot_side={self.pilot_side}, got {self.sides}")
+        if not 0 < self.check_fraction <= 1:
+            raise ValueError(f"check_fraction must be in (0, 1], got {self.check_fraction}")
+        if self.margin_px < 0:
+            raise ValueError(f"margin_px must be >= 0, got {self.margin_px}")
+
+    def to_dict(self) -> dict:
+        return {k: (list(v) if isinstance(v, tuple) else v) for k, v in asdict(self).items()}
+
+
+@dataclass
+class AdaptiveRender:
+    """One adaptively rendered view.
+
+    image_grey : (H, W) float32, full sensor, grey levels before sensor noise (0 outside ``crop``)
+    spp_map : (H, W) uint16, samples that made each pixel's value (0 outside the crop)
+    crop : (x0, y0, width, height) of the rendered window
+    mc : the measured Monte-Carlo noise and the sample budget (see :func:`render_views_adaptive`)
+    """
+
+    image_grey: np.ndarray
+    spp_map: np.ndarray
+    crop: tuple[int, int, int, int]
+    mc: dict = field(default_factory=dict)
+
+
+def _stream(view_seed: int, purpose: int) -> int:
+    """A 32-bit sampler key for one pass of one view (distinct passes and views never share a stream)."""
+    return int(np.random.SeedSequence([int(view_seed) & 0xFFFFFFFFFFFF, purpose]).generate_state(1)[0])
+
+
+def _uniform_pair(a, b):
+    """Two uniform floats in [0, 1) from one TEA hash of two 32-bit words (its two output words)."""
+    h0, h1 = mi.sample_tea_32(a, b, 5)
+    scale = 1.0 / 4294967296.0
+    return mi.Float(h0 >> 8) * (scale * 256.0), mi.Float(h1 >> 8) * (scale * 256.0)
+
+
+def _trace(scene, sensor, pixels: np.ndarray, width: int, side: int, seed: int, thin: bool,
+           spread: bool = False):
+    """Mean radiance of one stratified batch of ``side**2`` samples in each of the flat ``pixels``; with
+    ``spread`` also the variance of the single samples within each pixel (how much the pixel's footprint varies)."""
+    spp = side * side
+    out = np.empty(len(pixels), dtype=np.float64)
+    var = np.empty(len(pixels), dtype=np.float64) if spread else None
+    per_launch = max(1, MAX_LANES // spp)
+    for start in range(0, len(pixels), per_launch):
+        chunk = pixels[start:start + per_launch]
+        n = len(chunk) * spp
+        lane = dr.arange(mi.UInt32, n)
+        # spp, side and width stay literals (integer division by an opaque value does not vectorise); the seed
+        # is opaque: one compiled kernel per (camera, side, chunk size), reused for every seed and view
+        seed_o = dr.opaque(mi.UInt32, seed)
+        pix = dr.gather(mi.UInt32, mi.UInt32(chunk.astype(np.uint32)), lane // spp)
+        k = lane % spp
+        key = (k << 3) ^ (seed_o * 0x9E3779B1)
+        inv = 1.0 / side
+        ux, uy = _uniform_pair(pix, key)
+        px = mi.Float(pix % width) + (mi.Float(k % side) + ux) * inv
+        py = mi.Float(pix // width) + (mi.Float(k // side) + uy) * inv
+        film = sensor.film().crop_size()     # the sensor's film is the full sensor (no crop window)
+        position = mi.Point2f(px * (1.0 / film[0]), py * (1.0 / film[1]))
+        if thin:
+            # aperture strata in a per-pixel permuted order: stratified marginals, uncorrelated with the film's
+            shift = mi.sample_tea_32(pix, seed_o ^ 0x5BD1E995, 4)[0] % spp
+            q = (k * (2 * (spp // 3) + 1) + shift) % spp
+            vx, vy = _uniform_pair(pix, key ^ 1)
+            ax = (mi.Float(q % side) + vx) * inv
+            ay = (mi.Float(q // side) + vy) * inv
+            aperture = mi.Point2f(ax, ay)
+        else:
+            aperture = mi.Point2f(0.5, 0.5)
+        ray, _ = sensor.sample_ray(0.0, 0.5, position, aperture)
+        si = scene.ray_intersect(ray)
+        hit = si.is_valid()
+        radiance = dr.select(hit, si.emitter(scene).eval(si, hit)[0], 0.0)
+        radiance = mi.Float(radiance)
+        mean = np.array(dr.block_sum(radiance, spp), dtype=np.float64) / spp
+        out[start:start + len(chunk)] = mean
+        if spread:
+            # deviations from the pixel's first sample: exactly 0 for a constant footprint (float32 sums of
+            # squares would leave rounding noise that reads as texture)
+            dr.eval(radiance)
+            d = radiance - dr.gather(mi.Float, radiance, (lane // spp) * spp)
+            m1 = np.array(dr.block_sum(d, spp), dtype=np.float64) / spp
+            m2 = np.array(dr.block_sum(d * d, spp), dtype=np.float64) / spp
+            var[start:start + len(chunk)] = np.maximum(m2 - m1 * m1, 0.0) * spp / max(spp - 1, 1)
+    return (out, var) if spread else out
+
+
+def _crop_box(spec: SensorSpec, pose, surfaces: list[TexturedSurface], margin_px: float) -> tuple[int, int, int, int]:
+    """Projected bounding box of the surfaces' vertices, widened by the blur circle and the margin."""
+    from scenes.truth import defocus_blur_px, project_points
+
+    vertices = np.concatenate([s.vertices_mm for s in surfaces])
+    px = project_points(spec, *pose, vertices)
+    ok = np.all(np.isfinite(px), axis=1)
+    if not ok.all():            # a surface reaches behind the lens: no useful box
+        return 0, 0, spec.width, spec.height
+    grow = margin_px + 0.5 * float(np.max(defocus_blur_px(spec, *pose, vertices))) + 1.0
+    x0 = int(np.clip(np.floor(px[:, 0].min() - grow), 0, spec.width))
+    y0 = int(np.clip(np.floor(px[:, 1].min() - grow), 0, spec.height))
+    x1 = int(np.clip(np.ceil(px[:, 0].max() + grow) + 1, 0, spec.width))
+    y1 = int(np.clip(np.ceil(px[:, 1].max() + grow) + 1, 0, spec.height))
+    return x0, y0, max(0, x1 - x0), max(0, y1 - y0)
+
+
+def _window_pixels(box, width: int) -> np.ndarray:
+    x0, y0, w, h = box
+    yy, xx = np.mgrid[y0:y0 + h, x0:x0 + w]
+    return (yy * width + xx).ravel().astype(np.int64)
+
+
+def _lit_on_edge(values: np.ndarray, box, spec: SensorSpec) -> bool:
+    """True when a crop edge that is not the sensor's own edge has a lit pixel (the box missed something)."""
+    x0, y0, w, h = box
+    img = values.reshape(h, w)
+    edges = []
+    if x0 > 0:
+        edges.append(img[:, 0])
+    if y0 > 0:
+        edges.append(img[0, :])
+    if x0 + w < spec.width:
+        edges.append(img[:, -1])
+    if y0 + h < spec.height:
+        edges.append(img[-1, :])
+    return any(np.any(e != 0) for e in edges)
+
+
+def _max3(a: np.ndarray) -> np.ndarray:
+    """3 x 3 maximum with edge replication."""
+    p = np.pad(a, 1, mode="edge")
+    h, w = a.shape
+    return np.max([p[i:i + h, j:j + w] for i in range(3) for j in range(3)], axis=0)
+
+
+def _min3(a: np.ndarray) -> np.ndarray:
+    """3 x 3 minimum with edge replication."""
+    return -_max3(-a)
+
+
+def _mean3(a: np.ndarray) -> np.ndarray:
+    """3 x 3 box mean with edge replication."""
+    p = np.pad(a, 1, mode="edge")
+    h, w = a.shape
+    return sum(p[i:i + h, j:j + w] for i in range(3) for j in range(3)) / 9.0
+
+
+def _allocate(sigma: np.ndarray, lit: np.ndarray, pilot_side: int, sides, target: float, kappa: float,
+              p: float):
+    """Stratification level per pixel (-1: the pilot; j: ``sides[j]``) that meets an RMS target at least cost.
+
+    With a pixel's error ``kappa * sigma * side**-p`` (n = side^2 samples: ``kappa sigma n**(-p/2)``), the
+    fewest samples for a given mean squared error over the lit pixels are ``n ∝ sigma**(2 / (1 + p))``
+    (Lagrange); the scale is found by bisection on a histogram of sigma, and each pixel gets the smallest
+    available side at or above its n. Returns ``(level, worst)``: worst marks pixels that would need more
+    than the finest side.
+    """
+    grid = np.array([pilot_side] + list(sides), dtype=float)
+    n_lit = max(int(lit.sum()), 1)
+    varying = lit & (sigma > 0)
+    if not varying.any():
+        return np.full(len(sigma), -1), np.zeros(len(sigma), dtype=bool)
+    # histogram of log sigma: 256 bins are plenty to set one scale factor
+    log_s = np.log(sigma[varying])
+    edges = np.linspace(log_s.min(), log_s.max() + 1e-9, 257)
+    counts, _ = np.histogram(log_s, edges)
+    centre = np.exp(np.maximum(edges[1:], edges[:-1]))           # upper edge: conservative
+
+    def sides_for(lam, s):
+        need = np.sqrt(lam * s ** (2.0 / (1.0 + p)))              # the side whose n = lam * sigma^(2/(1+p))
+        k = np.searchsorted(grid, need - 1e-12)
+        return grid[np.minimum(k, len(grid) - 1)], k >= len(grid)
+
+    def rms(lam):
+        side, _ = sides_for(lam, centre)
+        return kappa * np.sqrt(np.sum(counts * centre ** 2 * side ** (-2.0 * p)) / n_lit)
+
+    lo, hi = 1e-12, 1e12
+    if rms(hi) > target:                                          # even the finest grid everywhere misses it
+        lam = hi
+    else:
+        for _ in range(80):
+            mid = np.sqrt(lo * hi)
+            lo, hi = (lo, mid) if rms(mid) <= target else (mid, hi)
+        lam = hi
+    side, over = sides_for(lam, sigma)
+    level = np.searchsorted(grid, side) - 1                       # grid[0] is the pilot -> -1
+    level[~lit | (sigma == 0)] = -1
+    return level, over & varying
+
+
+def render_views_adaptive(views: list[tuple[SensorSpec, tuple[np.ndarray, np.ndarray]]],
+                          surfaces: list[TexturedSurface], *, seed: int = 0, exposure_grey: float = 255.0,
+                          settings: AdaptiveSettings | None = None) -> list[AdaptiveRender]:
+    """Render ``surfaces`` in every view ``(spec, (R_cam_from_world, t_cam_from_world_mm))`` of one scene.
+
+    The scene (and its textures and acceleration structure) is loaded once for all the views, e.g. the two
+    cameras of a stereo state. View ``i`` uses sampler seed ``seed + i`` (Monte-Carlo noise is pixel-locked:
+    give every image its own).
+
+    Returns one :class:`AdaptiveRender` per view; its ``mc`` holds ``target_grey``, ``mc_rms_grey``
+    (measured RMS Monte-Carlo error of the lit pixels, from ``check_pixels`` pixels rendered twice),
+    ``predicted_rms_grey``, ``above_target_fraction`` (lit pixels predicted above the target even at the
+    finest stratification), ``mean_spp`` (over the lit pixels) and ``sensor_spp`` (samples traced per sensor
+    pixel, pilot and checks included: the cost), ``spp_histogram`` ({spp: pixels}), ``crop_fraction``,
+    ``lit_pixels`` and ``seconds``.
+    """
+    settings = settings or AdaptiveSettings()
+    if not surfaces:
+        raise ValueError("nothing to render: no surfaces given")
+    scene_dict = {"type": "scene", "integrator": {"type": INTEGRATOR, "truth": False}}
+    if mi.variant().startswith("llvm"):
+        scene_dict["embree_use_robust_intersections"] = True   # see scenes.render: Embree is not watertight
+    for i, (spec, pose) in enumerate(views):
+        # full-sensor film: pixel indices address the whole sensor; spp/seed of the sampler are unused here
+        scene_dict[f"sensor_{i}"] = sensor_dict(spec, *pose, 1, 0, None, "independent")
+    for i, surface in enumerate(surfaces):
+        scene_dict[f"surface_{i}"] = surface.to_mitsuba(f"surface_{i}")
+    scene = mi.load_dict(scene_dict)
+    sensors = scene.sensors()
+    target = settings.target_mc_grey / exposure_grey      # in radiance units
+    results = []
+    for i, (spec, pose) in enumerate(views):
+        t0 = time.perf_counter()
+        view_seed = seed + i
+        thin = spec.lens == "thin"
+        box = _crop_box(spec, pose, surfaces, settings.margin_px) if settings.crop else (0, 0, spec.width, spec.height)
+        ps = settings.pilot_side
+        while True:
+            pixels = _window_pixels(box, spec.width)
+            value, spread = _trace(scene, sensors[i], pixels, spec.width, ps, _stream(view_seed, 0), thin, spread=True)
+            if box == (0, 0, spec.width, spec.height) or not _lit_on_edge(value, box, spec):
+                break
+            x0, y0, w, h = box                     # the box missed part of a surface: grow it and start again
+            grow = max(16, w // 4, h // 4)
+            x1, y1 = min(spec.width, x0 + w + grow), min(spec.height, y0 + h + grow)
+            x0, y0 = max(0, x0 - grow), max(0, y0 - grow)
+            box = (x0, y0, x1 - x0, y1 - y0)
+        x0, y0, w, h = box
+        # The footprint's spread (std of single samples) sets a pixel's error at a finer stratification. A
+        # pixel whose samples all agree is flat unless a neighbour differs from it: then an edge may clip it
+        # (the pilot's samples can all miss a thin sliver), and it gets half the local contrast as its spread.
+        own = np.sqrt(spread).reshape(h, w)
+        img = value.reshape(h, w)
+        contrast = _max3(img) - _min3(img)
+        sigma = np.where(own > 0, np.maximum(own, _mean3(own)),
+                         np.where(contrast > 0, np.maximum(_max3(own), 0.5 * contrast), 0.0)).ravel()
+        lit = (value != 0) | (contrast.ravel() > 0)     # a background pixel beside a lit one may be clipped
+        traced = ps * ps * len(pixels)
+        # How the error falls with the grid here (an edge: side^-1.5, a smooth texture: side^-2): measured on
+        # a random share of the varying pixels, rendered twice at two grids.
+        rng = np.random.default_rng([view_seed & 0xFFFFFFFF, 0xCA1B])
+        cal = np.flatnonzero(lit & (sigma > 0) & (rng.random(len(pixels)) < settings.check_fraction))
+        kappa, p = 1.0, 1.5
+        if len(cal) >= 100:
+            ratio = {}
+            for side in (4, 8):
+                b1 = _trace(scene, sensors[i], pixels[cal], spec.width, side, _stream(view_seed, 100 + 2 * side), thin)
+                b2 = _trace(scene, sensors[i], pixels[cal], spec.width, side, _stream(view_seed, 101 + 2 * side), thin)
+                ratio[side] = np.sqrt(np.sum((b1 - b2) ** 2 / 2.0) / np.sum(sigma[cal] ** 2))
+                traced += 2 * side * side * len(cal)
+            if ratio[4] > 0 and ratio[8] > 0:
+                p = float(np.clip(np.log(ratio[4] / ratio[8]) / np.log(2.0), 1.0, 2.5))
+                kappa = float(ratio[8] * 8.0 ** p)
+        level, worst = _allocate(sigma, lit, ps, settings.sides, target, kappa, p)
+        spp = np.full(len(pixels), ps * ps, dtype=np.int64)
+        # check pixels: a random share of the lit pixels, rendered a second time at their final stratification
+        rng = np.random.default_rng([view_seed & 0xFFFFFFFF, 0xC0FFEE])
+        check = lit & (rng.random(len(pixels)) < settings.check_fraction)
+        check_var = np.zeros(len(pixels))
+        for j, side in [(-1, ps)] + list(enumerate(settings.sides)):
+            sel = np.flatnonzero(level == j)
+            if len(sel) == 0:
+                continue
+            if j >= 0:
+                value[sel] = _trace(scene, sensors[i], pixels[sel], spec.width, side, _stream(view_seed, 2 * side), thin)
+                spp[sel] = side * side
+                traced += side * side * len(sel)
+            chk = sel[check[sel]]
+            if len(chk):
+                again = _trace(scene, sensors[i], pixels[chk], spec.width, side, _stream(view_seed, 2 * side + 1), thin)
+                check_var[chk] = (again - value[chk]) ** 2 / 2.0          # variance of one batch's mean
+                traced += side * side * len(chk)
+        predicted = kappa * sigma * np.sqrt(spp) ** -p
+        image = np.zeros((spec.height, spec.width), dtype=np.float32)
+        image[y0:y0 + h, x0:x0 + w] = (value * exposure_grey).reshape(h, w).astype(np.float32)
+        spp_map = np.zeros((spec.height, spec.width), dtype=np.uint16)
+        spp_map[y0:y0 + h, x0:x0 + w] = np.minimum(spp, 65535).reshape(h, w)
+        n_lit = int(lit.sum())
+        n_check = int(check.sum())
+        values, counts = np.unique(spp[lit], return_counts=True)
+        mc = {"target_grey": settings.target_mc_grey, "error_model": {"kappa": kappa, "exponent": p},
+              "mc_rms_grey": float(np.sqrt(check_var[check].mean()) * exposure_grey) if n_check else 0.0,
+              "check_pixels": n_check,
+              "predicted_rms_grey": float(np.sqrt(np.mean(predicted[lit] ** 2)) * exposure_grey) if n_lit else 0.0,
+              "above_target_fraction": float(worst[lit].mean()) if n_lit else 0.0,
+              "mean_spp": float(spp[lit].mean()) if n_lit else 0.0,
+              "sensor_spp": traced / (spec.width * spec.height),
+              "spp_histogram": {int(v): int(c) for v, c in zip(values, counts)},
+              "crop": [int(c) for c in box], "crop_fraction": w * h / (spec.width * spec.height),
+              "lit_pixels": n_lit, "seconds": time.perf_counter() - t0}
+        results.append(AdaptiveRender(image, spp_map, box, mc))
+    return results
+
+
+def render_view_adaptive(spec: SensorSpec, R_cam_from_world, t_cam_from_world_mm, surfaces: list[TexturedSurface],
+                         *, seed: int = 0, exposure_grey: float = 255.0,
+                         settings: AdaptiveSettings | None = None) -> AdaptiveRender:
+    """One view of :func:`render_views_adaptive`."""
+    return render_views_adaptive([(spec, (R_cam_from_world, t_cam_from_world_mm))], surfaces, seed=seed,
+                                 exposure_grey=exposure_grey, settings=settings)[0]
+
+
+__all__ = ["AdaptiveRender", "AdaptiveSettings", "render_view_adaptive", "render_views_adaptive"]
