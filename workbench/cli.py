@@ -7,6 +7,7 @@
     workbench calibrate --left GLOB --right GLOB --square-mm 5 --pattern 11x8 [--model rmm]
                         [--tilt-guess-deg A,B] --out calib.json
     workbench reproduce dic-accuracy --out DIR
+    workbench reproduce paper [--quick] [--scale F] [--mc-target-grey G] [--strict] --out DIR
     workbench reproduce rigid-motion [--scale F] [--calib rendered|true|FILE] [--lens thin|pinhole] --out DIR
     workbench stereo --calib calib.json --left-ref L0 --right-ref R0 --left GLOB --right GLOB [--roi ...]
                      [--subset 65] [--step 5] [--max-residual-px 0.5] [--min-measured-fraction 0.5]
@@ -305,6 +306,8 @@ def _parser() -> argparse.ArgumentParser:
     ag.add_argument("--seed", type=_seed, default=0)
     ag.add_argument("--scale", type=_scale, default=1.0)
     ag.add_argument("--spp", type=_positive_int, default=256)
+    ag.add_argument("--mc-target-grey", type=_positive_float, default=None,
+                    help="render with the adaptive renderer at this Monte-Carlo noise (grey RMS) instead of --spp")
     ag.add_argument("--out", type=Path, required=True)
     rc = repsub.add_parser("calibration", help="the paper's calibration protocol on rendered views (Table 1, Fig 5)")
     rc.add_argument("--scale", type=_scale, default=1.0)
@@ -359,6 +362,17 @@ def _parser() -> argparse.ArgumentParser:
                     help="dataset store (renders by scenario hash); default $WORKBENCH_STORE or ~/.cache/...")
     f6.add_argument("--quiet", action="store_true", help="no progress bar")
     f6.add_argument("--out", type=Path, required=True)
+    pp = repsub.add_parser("paper", help="the whole paper: calibration, rigid motion, bending, depth of field; one "
+                                         "report (report.html, report.md) with every goal figure; resumable")
+    pp.add_argument("--quick", action="store_true", help="quarter scale, same protocol (CI and the README)")
+    pp.add_argument("--scale", type=_scale, default=None, help="image scale (default 1, or 0.25 with --quick)")
+    pp.add_argument("--mc-target-grey", type=_positive_float, default=None,
+                    help="Monte-Carlo noise target of the adaptive renders, grey RMS (default 0.3)")
+    pp.add_argument("--seed", type=_seed, default=0)
+    pp.add_argument("--strict", action="store_true", help="exit 1 when a goal figure is not met")
+    pp.add_argument("--store", type=Path, default=None,
+                    help="dataset store (renders by content hash); default $WORKBENCH_STORE or ~/.cache/...")
+    pp.add_argument("--out", type=Path, required=True)
     da = repsub.add_parser("dic-accuracy", help="DIC bias vs sub-pixel shift, noise floor, shape functions")
     da.add_argument("--out", type=Path, required=True)
     from workbench.experiments.star import add_star_parser
@@ -526,6 +540,15 @@ def _reproduce_bending(args) -> int:
     print(f"wrote {args.out / 'report.md'}")
     measured = [r for r in m["states"] if "error" not in r]
     return 0 if measured else 1
+
+
+def _reproduce_paper(args) -> int:
+    from workbench.experiments.paper import PaperSettings, reproduce_paper
+
+    settings = PaperSettings.for_mode(args.quick, args.scale, args.mc_target_grey, args.seed)
+    summary = reproduce_paper(args.out, settings, store=args.store)
+    failed = [g for g in summary["goals"] if g["met"] is False]
+    return 1 if (args.strict and failed) else 0
 
 
 def _reproduce_dic_accuracy(args) -> int:
@@ -804,7 +827,8 @@ def _reproduce_agreement(args) -> int:
 
     _output_folder(args.out)
     rig = get_rig(args.rig, args.scale)
-    summary = measure_agreement(rig, n_views=args.views, seed=args.seed, spp=args.spp)
+    spp = args.spp if args.mc_target_grey is None else f"adaptive:{args.mc_target_grey:g}"
+    summary = measure_agreement(rig, n_views=args.views, seed=args.seed, spp=spp)
     write_agreement_report(summary, args.out)
     print("\n".join(summary_lines(summary)))
     print(f"report: {args.out / 'report.md'}")
@@ -953,6 +977,7 @@ def main(argv: list[str] | None = None) -> int:
                 ("dic", None): _dic,
                 ("stereo", None): _stereo,
                 ("reproduce", "dic-accuracy"): _reproduce_dic_accuracy,
+                ("reproduce", "paper"): _reproduce_paper,
                 ("reproduce", "rigid-motion"): _reproduce_rigid_motion,
                 ("reproduce", "bending"): _reproduce_bending,
                 ("sweep", None): _sweep,

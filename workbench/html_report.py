@@ -516,3 +516,28 @@ def check_html_report(path: Path) -> dict:
                 raise ValueError(f"{name}: body row {r} has {len(row)} cells, the header {len(table['header'])}")
         tables.append({"caption_or_heading": label, "columns": len(table["header"]), "rows": len(table["rows"])})
     return {"figures": figures, "tables": tables, "headings": reader.headings}
+
+
+def main(argv: list[str] | None = None) -> int:
+    """``python -m workbench.html_report REPORT.html ...``: check reports as a reader sees them (exit 1 if not)."""
+    import sys
+
+    paths = sys.argv[1:] if argv is None else argv
+    if not paths:
+        print("usage: python -m workbench.html_report REPORT.html ...", file=sys.stderr)
+        return 2
+    status = 0
+    for p in paths:
+        try:
+            found = check_html_report(Path(p))
+        except (OSError, ValueError) as exc:
+            print(f"{p}: {exc}", file=sys.stderr)
+            status = 1
+            continue
+        print(f"{p}: {len(found['figures'])} figures decode, {len(found['tables'])} tables with "
+              f"{sum(t['rows'] for t in found['tables'])} rows, {len(found['headings'])} headings")
+    return status
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -28,6 +28,7 @@ from measurement.stereo_dic import StereoMatchError, measure_state, reference_sh
 from measurement.stereo_io import write_state_csv, write_state_vtk
 from measurement.strain import surface_strain, virtual_strain_gauge_px
 from workbench.experiments.bending_scenes import BENDING_LOADS_N, load_bending_truth, render_bending
+from workbench.experiments.calibration import render_content, mc_summary
 from workbench.experiments.rigid_motion import _face_roi, _finite_or_none, _rig_for_name
 from workbench.store import stored_render
 from workbench.rigs import scheimpflug_design_report
@@ -79,7 +80,8 @@ def _strain_invariants(E: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 def reproduce_bending(out_dir: str | Path, *, scale: float = 1.0, rig_name: str = "scheimpflug", lens: str = "thin",
                       calib: str = "rendered", seed: int = 0, spp: int = 64, noise_grey: float = 1.0,
                       subset_size: int = 65, step: int = 5, window: int | None = DEFAULT_STRAIN_WINDOW,
-                      loads_N=BENDING_LOADS_N, progress: bool = True, store=None) -> dict:
+                      loads_N=BENDING_LOADS_N, progress: bool = True, store=None,
+                      mc_target_grey: float | None = None, calibration_views: tuple[int, int] = (30, 20)) -> dict:
     """Render (or reuse) the load states, measure them, compute strain, score against truth, write the report.
 
     The load states are rendered into the dataset store (``store``, default
@@ -87,13 +89,14 @@ def reproduce_bending(out_dir: str | Path, *, scale: float = 1.0, rig_name: str 
     """
     out_dir = Path(out_dir)
     loads = np.asarray(loads_N, dtype=float)
-    rig, rig_text = _rig_for_name(calib, rig_name, scale, out_dir, seed, store)   # a bad calibration file: first
+    rig, rig_text = _rig_for_name(calib, rig_name, scale, out_dir, seed, store, mc_target_grey,  # bad file: first
+                                  calibration_views)
     content = {"experiment": "bending", "rig": rig_name, "scale": float(scale), "lens": lens, "seed": seed,
-               "spp": spp, "read_noise_grey": float(noise_grey), "loads_N": [float(v) for v in loads],
-               "fe": "ThreePointBending defaults/1"}
+               **render_content(spp, mc_target_grey), "read_noise_grey": float(noise_grey),
+               "loads_N": [float(v) for v in loads], "fe": "ThreePointBending defaults/1"}
     images, _ = stored_render("bending", content, lambda folder: render_bending(
         rig_name, folder, scale=scale, lens=lens, spp=spp, seed=seed, noise_grey=noise_grey, loads_N=loads,
-        progress=progress, overwrite=True), store)
+        progress=progress, overwrite=True, mc_target_grey=mc_target_grey), store)
     truth = load_bending_truth(images)
     settings = DICSettings(subset_size=subset_size, step=step, order=2)
     roi = _overlap_roi(truth, _face_roi(_FacePoses(truth), subset_size // 2), subset_size // 2, step)
@@ -208,7 +211,8 @@ def reproduce_bending(out_dir: str | Path, *, scale: float = 1.0, rig_name: str 
                           "U": (_grid(removal.residual_mm, grid), _grid(U_true_def, grid)),
                           "strain": (strain.magnitude, filtered.magnitude, mag_exact_g),
                           "area": (strain.area_change, filtered.area_change, _grid(area_exact, grid))}
-    metrics = {"rig": rig_name, "calibration": rig_text, "images": str(images), "lens": lens, "scale": scale, "spp": spp,
+    metrics = {"rig": rig_name, "calibration": rig_text, "images": str(images), "lens": lens, "scale": scale,
+               **render_content(spp, mc_target_grey), "render_mc": mc_summary(truth.info["render"].get("mc", [])),
                "noise_grey": noise_grey, "subset_px": subset_size, "step_px": step,
                "strain_window": window if window is not None else "per-triangle (Cosserat point elements)",
                "vsg_px": vsg, "roi_px": list(roi), "points": int(shape.x.size),

@@ -88,10 +88,30 @@ def plane_fits_of_detected_boards(rig_cal: CalibratedRig, pairs: DetectedPairs) 
             "max_abs_um": float(1e3 * np.nanmax(np.abs(all_d))), "per_board_rmse_um": per_board, "example": example}
 
 
+def render_content(spp: int, mc_target_grey: float | None) -> dict:
+    """How the images were rendered, as it enters the store's content hash (fixed spp keeps its old form)."""
+    return {"spp": spp} if mc_target_grey is None else {"spp": "adaptive", "mc_target_grey": float(mc_target_grey)}
+
+
+def mc_summary(records: list) -> dict | None:
+    """Per-dataset figures of adaptive renders (:mod:`scenes.adaptive`): measured MC noise and sample counts."""
+    records = [r for r in records if r]
+    if not records:
+        return None
+    rms = np.array([r["mc_rms_grey"] for r in records])
+    cost = np.array([r["sensor_spp"] for r in records])
+    return {"images": len(records), "target_grey": records[0]["target_grey"],
+            "mc_rms_grey": {"median": float(np.median(rms)), "max": float(rms.max())},
+            "sensor_spp": {"median": float(np.median(cost)), "max": float(cost.max())},
+            "mean_spp_lit": float(np.median([r["mean_spp"] for r in records])),
+            "crop_fraction": float(np.median([r["crop_fraction"] for r in records])),
+            "seconds_per_image": float(np.median([r["seconds"] for r in records]))}
+
+
 def reproduce_calibration(out_dir: Path, *, scale: float = 1.0, seed: int = 0, spp: int = 64, noise_grey: float = 1.0,
                           n_calibration: int = 30, n_validation: int = 20, models=("rmm", "pinhole"),
                           progress: bool = True, refine_corners: bool = False, rig_name: str = "paper",
-                          store=None) -> dict:
+                          store=None, mc_target_grey: float | None = None) -> dict:
     """Render, calibrate, validate; writes calibration files, ``metrics.json`` and ``report.md``.
 
     The board views are rendered into the dataset store (``store``: a :class:`workbench.store.DatasetStore` or
@@ -99,6 +119,7 @@ def reproduce_calibration(out_dir: Path, *, scale: float = 1.0, seed: int = 0, s
     an identical run reuses them; ``metrics["images"]`` names the folder.
     ``rig_name``: the true rig (:func:`workbench.rigs.get_rig`); boards are rendered through its pinhole (the
     chief-ray geometry that a thin lens shares), its tilt guess from :data:`RIG_TILT_GUESS_DEG`.
+    ``mc_target_grey``: adaptive renders (:mod:`scenes.adaptive`) at that Monte-Carlo noise instead of ``spp``.
     """
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -110,11 +131,11 @@ def reproduce_calibration(out_dir: Path, *, scale: float = 1.0, seed: int = 0, s
     noise = SensorNoise(read_noise_grey=noise_grey, bit_depth=8)
     content = {"experiment": "calibration", "rig": rig_name, "scale": float(scale), "intrinsics": {
                    s: rig.camera(s).to_dict() for s in ("left", "right")}, "views": n_calibration + n_validation,
-               "seed": seed, "spp": spp, "read_noise_grey": float(noise_grey), "bit_depth": 8,
+               "seed": seed, **render_content(spp, mc_target_grey), "read_noise_grey": float(noise_grey), "bit_depth": 8,
                "board": {"squares": list(board.squares), "square_mm": board.square_mm}, "poses": "random_board_poses/1"}
     images, reused = stored_render("checkerboard", content, lambda folder: write_checkerboard_dataset(
         rig, folder, n_calibration + n_validation, seed, spp=spp, board=board, noise=noise, progress=progress,
-        poses=poses, overwrite=True), store)
+        poses=poses, overwrite=True, mc_target_grey=mc_target_grey), store)
     truth = json.loads((images / "truth.json").read_text())
     t_render = time.perf_counter() - t0
     files = {side: [images / im["file"] for im in truth["images"] if im["camera"] == side]
@@ -123,7 +144,8 @@ def reproduce_calibration(out_dir: Path, *, scale: float = 1.0, seed: int = 0, s
     val_files = {s: f[n_calibration:] for s, f in files.items()}
     val_points = np.array([im["points_cam_mm"] for im in truth["images"]
                            if im["camera"] == "left" and im["view"] >= n_calibration])
-    metrics = {"scale": scale, "image_size_px": [rig.left.width, rig.left.height], "seed": seed, "spp": spp,
+    metrics = {"scale": scale, "image_size_px": [rig.left.width, rig.left.height], "seed": seed,
+               **render_content(spp, mc_target_grey), "render_mc": mc_summary([im.get("mc") for im in truth["images"]]),
                "noise_grey": noise_grey, "calibration_views": n_calibration, "validation_views": n_validation,
                "render_s": "reused" if reused else round(t_render, 1), "images": str(images),
                "datasheet_tilt_deg": tilt_guess, "rig": rig_name,

@@ -57,7 +57,8 @@ def sensor_spec_for(rig: StereoRig, side: str, **lens) -> SensorSpec:
 
 
 def render_board_views(rig: StereoRig, board: Checkerboard, poses, *, spp: int = 64, seed: int = 0,
-                       bit_depth: int = 8, progress: bool = True, lens_terms: dict | None = None):
+                       bit_depth: int = 8, progress: bool = True, lens_terms: dict | None = None,
+                       mc_target_grey: float | None = None):
     """Render every pose in both cameras; yields :class:`BoardView` (noise-free images).
 
     ``poses``: list of ``(R_world_from_board, t_world_from_board_mm)``. A pose whose board leaves an image
@@ -65,7 +66,9 @@ def render_board_views(rig: StereoRig, board: Checkerboard, poses, *, spp: int =
     where the corners really are (:meth:`scenes.targets.Checkerboard.true_corners_board_mm`: an imperfect
     board's corners are not the nominal ones the instrument is told). ``lens_terms``: distortion terms of the
     true lenses that the rig's model lacks (``k3``, ``s1``-``s4``); the truth pixels are then projected by the
-    truth side's camera (:func:`scenes.truth.project_points`).
+    truth side's camera (:func:`scenes.truth.project_points`). ``mc_target_grey``: render both cameras of a view
+    from one scene with :mod:`scenes.adaptive` at that Monte-Carlo noise (``spp`` is then unused); the measured
+    noise and sample counts are in ``BoardView.extra["mc"]``.
     """
     from scenes.truth import project_points
 
@@ -73,22 +76,33 @@ def render_board_views(rig: StereoRig, board: Checkerboard, poses, *, spp: int =
     for view, (R_wb, t_wb) in enumerate(tqdm(poses, desc="rendering board views", disable=not progress)):
         check_in_view(board_outline_mm(board) @ np.asarray(R_wb).T + t_wb, rig, what=f"board of view {view}")
         surface = board.surface(R_wb, t_wb)
+        specs = {side: sensor_spec_for(rig, side, **(lens_terms or {})) for side in ("left", "right")}
+        adaptive = None
+        if mc_target_grey is not None:
+            from scenes.adaptive import AdaptiveSettings, render_views_adaptive
+            adaptive = render_views_adaptive([(specs[side], rig.pose(side)) for side in ("left", "right")], [surface],
+                                             seed=seed * 100003 + 2 * view, exposure_grey=EXPOSURE_GREY[bit_depth],
+                                             settings=AdaptiveSettings(target_mc_grey=mc_target_grey))
         for k, side in enumerate(("left", "right")):
             R_cw, t_cw = rig.pose(side)
             R_cb, t_cb = R_cw @ R_wb, R_cw @ t_wb + t_cw
-            spec = sensor_spec_for(rig, side, **(lens_terms or {}))
-            result = render_view(spec, R_cw, t_cw, [surface], spp=spp,
-                                 seed=seed * 100003 + 2 * view + k, exposure_grey=EXPOSURE_GREY[bit_depth])
+            spec = specs[side]
+            if adaptive is None:
+                image, extra = render_view(spec, R_cw, t_cw, [surface], spp=spp, seed=seed * 100003 + 2 * view + k,
+                                           exposure_grey=EXPOSURE_GREY[bit_depth]).image_grey, {}
+            else:
+                image, extra = adaptive[k].image_grey, {"mc": adaptive[k].mc}
             points = corners_board @ R_cb.T + t_cb
             pixels = (project_points(spec, np.eye(3), np.zeros(3), points) if lens_terms
                       else rig.camera(side).project(points))
-            yield BoardView(view, side, result.image_grey, R_cb, t_cb, points, pixels)
+            yield BoardView(view, side, image, R_cb, t_cb, points, pixels, extra)
 
 
 def write_checkerboard_dataset(rig: StereoRig, out_dir: Path, n_views: int, seed: int, *, spp: int = 64,
                                board: Checkerboard | None = None, noise: SensorNoise | None = None,
                                image_format: str = "png", progress: bool = True, poses=None,
-                               overwrite: bool = False, lens_terms: dict | None = None) -> dict:
+                               overwrite: bool = False, lens_terms: dict | None = None,
+                               mc_target_grey: float | None = None) -> dict:
     """Render ``n_views`` random stereo poses (or the given ``poses``) and write images, ``truth.json`` and
     ``manifest.json`` (:mod:`workbench.manifest`; truth and manifest last: a folder with a manifest is complete).
 
@@ -107,7 +121,7 @@ def write_checkerboard_dataset(rig: StereoRig, out_dir: Path, n_views: int, seed
     prepare_folder(out_dir, "checkerboard", names + ["truth.json"], overwrite=overwrite)
     images = []
     for bv in render_board_views(rig, board, poses, spp=spp, seed=seed, bit_depth=noise.bit_depth or 8,
-                                 progress=progress, lens_terms=lens_terms):
+                                 progress=progress, lens_terms=lens_terms, mc_target_grey=mc_target_grey):
         name = f"{bv.camera}_{bv.view:03d}.{extension}"
         noisy = noise.apply(bv.image_grey, seed=seed * 100003 + 2 * bv.view + (bv.camera == "right"))
         atomic_write_image(out_dir / name, to_image_dtype(noisy, noise.bit_depth or 8))
@@ -118,6 +132,7 @@ def write_checkerboard_dataset(rig: StereoRig, out_dir: Path, n_views: int, seed
             "t_cam_from_board_mm": bv.t_cam_from_board_mm.tolist(),
             "points_cam_mm": bv.points_cam_mm.tolist(),
             "pixels": bv.pixels.tolist(),
+            **({"mc": bv.extra["mc"]} if "mc" in bv.extra else {}),
         })
     truth = {
         "about": "Ground truth of rendered checkerboard views. Pixels follow OpenCV (pixel centres at integer "
@@ -134,7 +149,9 @@ def write_checkerboard_dataset(rig: StereoRig, out_dir: Path, n_views: int, seed
                                         "corner_noise_seed": board.corner_noise_seed},
                       "true_corners_board_mm": board.true_corners_board_mm().tolist()})},
         **({"true_lens_terms": {k: float(v) for k, v in lens_terms.items()}} if lens_terms else {}),
-        "render": {"spp": spp, "seed": seed, "bit_depth": noise.bit_depth,
+        "render": {"spp": "adaptive" if mc_target_grey is not None else spp,
+                   **({"mc_target_grey": float(mc_target_grey)} if mc_target_grey is not None else {}),
+                   "seed": seed, "bit_depth": noise.bit_depth,
                    "read_noise_grey": noise.read_noise_grey, "electrons_per_grey": noise.electrons_per_grey},
         "images": images,
     }

@@ -177,34 +177,59 @@ def depth_of_field_dic(scene: DepthOfFieldScene, image_static: dict, image_moved
 
 def run_depth_of_field_study(scale: float = 0.5, object_tilt_deg: float = 38.0, f_number: float = 4.0,
                              spp: int = 64, seed: int = 0, shift_px: float = 0.4, noise_grey: float = 1.0,
-                             subset_size: int = 33, step: int = 16) -> tuple[DepthOfFieldScene, dict, dict]:
+                             subset_size: int = 33, step: int = 16,
+                             mc_target_grey: float | None = None) -> tuple[DepthOfFieldScene, dict, dict]:
     """MIG, blur, DIC noise floor and displacement error of the tilted and untilted sensor at one f-number.
 
     The plate moves by ``shift_px`` pixels' worth (at its centre) along its own x axis between the two renders.
+    ``mc_target_grey``: both cameras from one scene with :mod:`scenes.adaptive` at that Monte-Carlo noise
+    (``spp`` unused); the measured noise per image is in ``figures[camera]["render_mc"]``.
     Returns ``(scene, images {"static"|"moved": {camera: image}}, figures per camera)``.
     """
     scene = depth_of_field_scene(scale=scale, object_tilt_deg=object_tilt_deg, f_number=f_number, seed=seed)
     texture = scene.plate.texture()
     px_mm = float(scene.t_world_from_plate_mm[2]) / scene.specs["scheimpflug"].fx
     shift = np.array([shift_px * px_mm, 0.0, 0.0])
-    images = {}
+    images, mc = {}, {}
     for key, offset in (("static", np.zeros(3)), ("moved", shift)):
         surface = scene.plate.surface(scene.R_world_from_plate,
                                       scene.t_world_from_plate_mm + scene.R_world_from_plate @ offset, texture)
-        images[key] = {name: render_view(spec, np.eye(3), np.zeros(3), [surface], spp=spp,
-                                         seed=seed + 1 + (key == "moved")).image_grey
-                       for name, spec in scene.specs.items()}
+        if mc_target_grey is None:
+            images[key] = {name: render_view(spec, np.eye(3), np.zeros(3), [surface], spp=spp,
+                                             seed=seed + 1 + (key == "moved")).image_grey
+                           for name, spec in scene.specs.items()}
+        else:
+            from scenes.adaptive import AdaptiveSettings, render_views_adaptive
+            names = list(scene.specs)
+            rendered = render_views_adaptive([(scene.specs[n], (np.eye(3), np.zeros(3))) for n in names], [surface],
+                                             seed=10 * (seed + 1 + (key == "moved")),
+                                             settings=AdaptiveSettings(target_mc_grey=mc_target_grey))
+            images[key] = {n: r.image_grey for n, r in zip(names, rendered)}
+            mc[key] = {n: r.mc for n, r in zip(names, rendered)}
     figures = depth_of_field_dic(scene, images["static"], images["moved"], shift, noise_grey=noise_grey,
                                  subset_size=subset_size, step=step, seed=seed)
     for name in scene.specs:
         mask = _central_mask(*images["static"][name].shape)
         figures[name]["mig"] = mean_intensity_gradient(images["static"][name], mask)
+        if mc:
+            figures[name]["render_mc"] = {key: mc[key][name] for key in mc}
     return scene, images, figures
 
 
+def _render_text(metrics: dict) -> str:
+    if metrics.get("spp") != "adaptive":
+        return f"{metrics['spp']} spp"
+    rms = [r["mc_rms_grey"] for c in metrics["cameras"].values() for r in c.get("render_mc", {}).values()]
+    return (f"adaptive sampling (Monte-Carlo noise target {metrics['mc_target_grey']:g} grey, measured "
+            f"{max(rms):.3f} grey RMS at most)")
+
+
 def reproduce_depth_of_field(out_dir, *, scale: float = 1.0, object_tilt_deg: float = 38.0, f_number: float = 4.0,
-                             spp: int = 64, seed: int = 0, noise_grey: float = 1.0) -> dict:
-    """Write ``metrics.json``, ``report.md``, ``side_by_side.png`` and ``dic_maps.png`` (tilted vs untilted)."""
+                             spp: int = 64, seed: int = 0, noise_grey: float = 1.0,
+                             mc_target_grey: float | None = None) -> dict:
+    """Write ``metrics.json``, ``report.md``, ``side_by_side.png`` and ``dic_maps.png`` (tilted vs untilted).
+
+    ``mc_target_grey``: adaptive renders (:mod:`scenes.adaptive`) at that Monte-Carlo noise instead of ``spp``."""
     import json
     from pathlib import Path
 
@@ -222,7 +247,7 @@ def reproduce_depth_of_field(out_dir, *, scale: float = 1.0, object_tilt_deg: fl
     step = max(8, int(round(16 * scale)))
     scene, images, fig = run_depth_of_field_study(scale=scale, object_tilt_deg=object_tilt_deg, f_number=f_number,
                                                   spp=spp, seed=seed, noise_grey=noise_grey, subset_size=subset,
-                                                  step=step)
+                                                  step=step, mc_target_grey=mc_target_grey)
     paper = paper_values()["speckle_quality"]
     st, cv = images["static"]["scheimpflug"], images["static"]["conventional"]
     for name, img in (("scheimpflug", st), ("conventional", cv)):
@@ -246,7 +271,9 @@ def reproduce_depth_of_field(out_dir, *, scale: float = 1.0, object_tilt_deg: fl
     figure.tight_layout()
     save_figure(figure, out_dir / "dic_maps.png", dpi=110)
     plt.close(figure)
-    metrics = {"object_tilt_deg": object_tilt_deg, "f_number": f_number, "scale": scale, "spp": spp,
+    from workbench.experiments.calibration import render_content
+    metrics = {"object_tilt_deg": object_tilt_deg, "f_number": f_number, "scale": scale,
+               **render_content(spp, mc_target_grey),
                "noise_grey": noise_grey, "subset_px": subset, "step_px": step,
                "paper_mig_scheimpflug": paper["MIG_scheimpflug"], "paper_mig_conventional": paper["MIG_conventional"],
                "cameras": {name: {k: v for k, v in d.items() if k != "maps"} for name, d in fig.items()}}
@@ -257,7 +284,7 @@ def reproduce_depth_of_field(out_dir, *, scale: float = 1.0, object_tilt_deg: fl
     atomic_write_text(out_dir / "report.md", "\n".join([
         "# Depth of field: Scheimpflug vs untilted sensor, in the instrument's terms", "",
         f"An oblique speckled plate ({object_tilt_deg}° about the camera Y axis, centre at 376 mm) through the same "
-        f"thin lens at f/{f_number}, scale {scale} ({w} x {h} px), {spp} spp. The tilted sensor "
+        f"thin lens at f/{f_number}, scale {scale} ({w} x {h} px), {_render_text(metrics)}. The tilted sensor "
         f"({s['sensor_tilt_deg']:.2f}° from the thin-lens focus condition) keeps the whole plate in focus; the "
         "untilted one only its middle. Over the central 80 % of the image: MIG, the blur circle of the plate point "
         "each POI sees, the DIC noise floor of a static pair (two sensor-noise draws, σ = "

@@ -29,7 +29,7 @@ def patch_half_size_px(rig: StereoRig, board: Checkerboard) -> int:
     return int(np.clip(0.4 * square_px, 3, 10))
 
 
-def measure_agreement(rig: StereoRig, n_views: int = 2, seed: int = 0, spp: int = 256, supersample: int = 12,
+def measure_agreement(rig: StereoRig, n_views: int = 2, seed: int = 0, spp: int | str = 256, supersample: int = 12,
                       progress: bool = True) -> dict:
     """Render ``n_views`` random board poses in both cameras and fit every inner corner.
 
@@ -44,7 +44,10 @@ def measure_agreement(rig: StereoRig, n_views: int = 2, seed: int = 0, spp: int 
                   for side in ("left", "right")}
     t_render = t_fit = 0.0
     t0 = time.perf_counter()
-    for bv in render_board_views(rig, board, poses, spp=spp, seed=seed, progress=progress):
+    # spp "adaptive:<grey>": the cropped, adaptively sampled renderer (scenes.adaptive) at that MC noise target
+    target = float(str(spp).split(":", 1)[1]) if str(spp).startswith("adaptive:") else None
+    for bv in render_board_views(rig, board, poses, spp=256 if target else spp, seed=seed, progress=progress,
+                                 mc_target_grey=target):
         t_render += time.perf_counter() - t0
         t1 = time.perf_counter()
         fits = fit_corners(bv.image_grey, rig.camera(bv.camera), pattern, bv.R_cam_from_board,

@@ -25,6 +25,7 @@ from measurement.rigid import fit_rigid
 from measurement.stereo_dic import StereoMatchError, measure_state, reference_shape
 from measurement.stereo_io import write_state_csv, write_state_vtk
 from scenes.motion import stage_states_mm
+from workbench.experiments.calibration import render_content, mc_summary
 from workbench.experiments.rigid_motion_scenes import load_truth, render_rigid_motion
 from workbench.manifest import save_figure
 from workbench.store import stored_render
@@ -45,13 +46,15 @@ def _finite_or_none(value: float) -> float | None:
     return float(value) if np.isfinite(value) else None
 
 
-def _rig_for(calib: str, scale: float, out_dir: Path, seed: int, store=None) -> tuple[CalibratedRig, str]:
+def _rig_for(calib: str, scale: float, out_dir: Path, seed: int, store=None,
+             mc_target_grey: float | None = None) -> tuple[CalibratedRig, str]:
     """The rig the instrument uses: 'true', 'rendered' (reproduced from rendered boards) or a file."""
-    return _rig_for_name(calib, "paper", scale, out_dir, seed, store)
+    return _rig_for_name(calib, "paper", scale, out_dir, seed, store, mc_target_grey)
 
 
 def _rig_for_name(calib: str, rig_name: str, scale: float, out_dir: Path, seed: int,
-                  store=None) -> tuple[CalibratedRig, str]:
+                  store=None, mc_target_grey: float | None = None,
+                  views: tuple[int, int] = (30, 20)) -> tuple[CalibratedRig, str]:
     """The instrument's rig for the true rig ``rig_name``: 'true', 'rendered' (from rendered boards) or a file."""
     if calib == "true":
         rig = get_rig(rig_name, scale)
@@ -60,12 +63,15 @@ def _rig_for_name(calib: str, rig_name: str, scale: float, out_dir: Path, seed: 
         path = out_dir / "calibration" / "calibration.json"
         made = out_dir / "calibration" / "metrics.json"
         # reuse an earlier calibration only if it was reproduced for this rig at this scale and seed
-        stale = made.is_file() and (lambda m: (m.get("rig", "paper"), m.get("scale"), m.get("seed"))
-                                    != (rig_name, scale, seed))(json.loads(made.read_text()))
+        stale = made.is_file() and (lambda m: (m.get("rig", "paper"), m.get("scale"), m.get("seed"),
+                                               m.get("mc_target_grey"), m.get("calibration_views"),
+                                               m.get("validation_views"))
+                                    != (rig_name, scale, seed, mc_target_grey, *views))(json.loads(made.read_text()))
         if not path.is_file() or stale:
             from workbench.experiments.calibration import reproduce_calibration
             reproduce_calibration(out_dir / "calibration", scale=scale, seed=seed, refine_corners=scale >= 0.75,
-                                  rig_name=rig_name, store=store)
+                                  rig_name=rig_name, store=store, mc_target_grey=mc_target_grey,
+                                  n_calibration=views[0], n_validation=views[1])
         return load_calibration(path), f"calibration reproduced from rendered boards ({path})"
     path = Path(calib)
     if not path.is_file():
@@ -166,20 +172,23 @@ def measure_rigid_motion(truth, images: Path, rig: CalibratedRig, *, subset_size
 
 def reproduce_rigid_motion(out_dir: str | Path, *, scale: float = 1.0, calib: str = "rendered", lens: str = "pinhole",
                            seed: int = 0, spp: int = 64, subset_size: int = 65, step: int = 5, states=None,
-                           progress: bool = True, store=None) -> dict:
+                           progress: bool = True, store=None, mc_target_grey: float | None = None) -> dict:
     """Render (or reuse) the states, measure them, score against truth, write the report. Returns the metrics.
+
+    ``mc_target_grey``: adaptive renders (:mod:`scenes.adaptive`) at that Monte-Carlo noise instead of ``spp``
+    (the rendered calibration too).
 
     The states are rendered into the dataset store (``store``, default :func:`workbench.store.default_store_dir`)
     under the hash of everything that makes them: an identical run reuses them (``metrics["images"]``).
     """
     out_dir = Path(out_dir)
-    rig, rig_text = _rig_for(calib, scale, out_dir, seed, store)  # a bad calibration file is refused before rendering
+    rig, rig_text = _rig_for(calib, scale, out_dir, seed, store, mc_target_grey)  # a bad file: refused first
     wanted = stage_states_mm() if states is None else np.asarray(states, dtype=float)
     content = {"experiment": "rigid-motion", "rig": "paper", "scale": float(scale), "lens": lens, "seed": seed,
-               "spp": spp, "read_noise_grey": 1.0, "states_mm": [float(v) for v in wanted]}
+               **render_content(spp, mc_target_grey), "read_noise_grey": 1.0, "states_mm": [float(v) for v in wanted]}
     images, _ = stored_render("rigid-motion", content, lambda folder: render_rigid_motion(
         "paper", folder, scale=scale, lens=lens, spp=spp, seed=seed, states=wanted, progress=progress,
-        overwrite=True), store)
+        overwrite=True, mc_target_grey=mc_target_grey), store)
     truth = load_truth(images)
     m = measure_rigid_motion(truth, images, rig, subset_size=subset_size, step=step, points_dir=out_dir / "points",
                              progress=progress)
@@ -194,7 +203,9 @@ def reproduce_rigid_motion(out_dir: str | Path, *, scale: float = 1.0, calib: st
                  goal_mean_um=_finite_or_none(pm / 10), goal_std_um=_finite_or_none(ps / 3),
                  meets_goal=bool(abs(r["mean_error_um"]) <= pm / 10 and r["std_um"] <= ps / 3)
                  if np.isfinite(pm) else None)
-    metrics = {"calibration": rig_text, "images": str(images), "lens": lens, "scale": scale, "subset_px": subset_size, "step_px": step,
+    metrics = {"calibration": rig_text, "images": str(images), "lens": lens, "scale": scale,
+               **render_content(spp, mc_target_grey), "render_mc": mc_summary(truth.info["render"].get("mc", [])),
+               "subset_px": subset_size, "step_px": step,
                "roi_px": list(roi), "points": int(shape.x.size), "reference_points_triangulated": int(ok0.sum()),
                "reference_3d_error_um": {"unaligned_rms": float(1e3 * np.sqrt(np.mean(unaligned ** 2))),
                                          "aligned_rms": float(1e3 * np.sqrt(np.mean(aligned ** 2))),

@@ -251,7 +251,8 @@ def render_rigid_motion(rig: StereoRig | str, out_dir, scale: float = 1.0, lens:
                         centre_world_mm=None, progress: bool = True, overwrite: bool = False,
                         stage_errors: StageErrors | None = None, drift: CameraDrift | None = None,
                         illumination: IlluminationChange | None = None, lens_terms: dict | None = None,
-                        electrons_per_grey: float | None = None, focus_offset_mm: float = 0.0) -> RigidMotionTruth:
+                        electrons_per_grey: float | None = None, focus_offset_mm: float = 0.0,
+                        mc_target_grey: float | None = None) -> RigidMotionTruth:
     """Render the rigid-motion test in both cameras and write ``left_KK.png``, ``right_KK.png``, ``truth.json``
     and ``manifest.json`` (truth and manifest last: a folder with a manifest is complete).
 
@@ -261,7 +262,7 @@ def render_rigid_motion(rig: StereoRig | str, out_dir, scale: float = 1.0, lens:
         A name is built at ``scale``; a StereoRig already has its scale (then ``scale`` must stay 1).
     out_dir : directory to write into (created)
     lens : "thin" (Scheimpflug-tilted sensor, focused on the face centre, ``f_number``) or "pinhole"
-    spp : samples per pixel
+    spp : samples per pixel (unused with ``mc_target_grey``: adaptive renders at that Monte-Carlo noise, grey)
     seed : seeds the speckle (default specimen), the sampler and the noise; same seed -> same files
     noise_grey : read-noise sigma in grey levels (8-bit images)
     states : stage positions in mm (default 0 -> 10 -> 0 mm in 1 mm steps, 21 states)
@@ -290,12 +291,13 @@ def render_rigid_motion(rig: StereoRig | str, out_dir, scale: float = 1.0, lens:
     planned = [f"{side}_{k:0{digits}d}.png" for k in range(len(truth.poses)) for side in SIDES]
     prepare_folder(out_dir, "rigid-motion", planned + ["truth.json"], overwrite=overwrite)
     texture = truth.specimen.texture()
+    mc_log: list = []
     files = render_stereo_states(truth, lambda k: truth.specimen.surfaces(*truth.poses[k], texture=texture),
                                  len(truth.poses), out_dir, noise, spp=spp, seed=seed,
                                  desc=f"rendering rigid motion ({lens})", progress=progress, drift=drift,
-                                 illumination=illumination)
+                                 illumination=illumination, mc_target_grey=mc_target_grey, mc_log=mc_log)
     truth.files = files
-    truth.info.update(render_info(rig, rig_scale, spp, seed, noise_grey))
+    truth.info.update(render_info(rig, rig_scale, spp, seed, noise_grey, mc_target_grey, mc_log))
     if electrons_per_grey is not None:
         truth.info["render"]["electrons_per_grey"] = float(electrons_per_grey)
     if drift is not None and not drift.is_zero:
@@ -323,36 +325,52 @@ def resolve_rig(rig: StereoRig | str, scale: float) -> tuple[StereoRig, float | 
 
 def render_stereo_states(truth, surfaces_of_state, n_states: int, out_dir: Path, noise: SensorNoise, *, spp: int,
                          seed: int, desc: str, progress: bool = True, drift: CameraDrift | None = None,
-                         illumination: IlluminationChange | None = None) -> list[dict[str, str]]:
+                         illumination: IlluminationChange | None = None, mc_target_grey: float | None = None,
+                         mc_log: list | None = None) -> list[dict[str, str]]:
     """Render every state in both cameras as 8-bit ``left_KK.png`` / ``right_KK.png`` (atomic writes).
 
     ``truth`` provides ``specs`` and ``camera_poses``; ``surfaces_of_state(k)`` the scene of state k. One seed per
     image (``seed * 100003 + 2 k + camera``): Monte-Carlo noise is pixel-locked, so states must not share it.
     ``drift``: the drifting camera renders state k from :func:`scenes.drift.drifted_pose`; ``illumination``:
     the scene radiance of state k changes (:meth:`scenes.illumination.IlluminationChange.apply`) before the
-    sensor noise. Returns the file names per state.
+    sensor noise. ``mc_target_grey``: both cameras of a state from one scene with :mod:`scenes.adaptive` at that
+    Monte-Carlo noise (``spp`` unused); each image's measured noise and sample counts are appended to ``mc_log``.
+    Returns the file names per state.
     """
     digits = max(2, len(str(n_states - 1)))
     files = []
     for k in tqdm(range(n_states), desc=desc, disable=not progress):
         surfaces = surfaces_of_state(k)
         names = {}
+        poses = {side: drifted_pose(*truth.camera_poses[side], drift, k, camera=side) for side in SIDES}
+        adaptive = None
+        if mc_target_grey is not None:
+            from scenes.adaptive import AdaptiveSettings, render_views_adaptive
+            adaptive = render_views_adaptive([(truth.specs[side], poses[side]) for side in SIDES], surfaces,
+                                             seed=seed * 100003 + 2 * k, exposure_grey=EXPOSURE_GREY[8],
+                                             settings=AdaptiveSettings(target_mc_grey=mc_target_grey))
         for c, side in enumerate(SIDES):
             image_seed = seed * 100003 + 2 * k + c
-            pose = drifted_pose(*truth.camera_poses[side], drift, k, camera=side)
-            result = render_view(truth.specs[side], *pose, surfaces, spp=spp, seed=image_seed,
-                                 exposure_grey=EXPOSURE_GREY[8])
-            image = result.image_grey if illumination is None else illumination.apply(result.image_grey, k)
+            if adaptive is None:
+                rendered = render_view(truth.specs[side], *poses[side], surfaces, spp=spp, seed=image_seed,
+                                       exposure_grey=EXPOSURE_GREY[8]).image_grey
+            else:
+                rendered = adaptive[c].image_grey
+                if mc_log is not None:
+                    mc_log.append({"state": k, "camera": side, **adaptive[c].mc})
+            image = rendered if illumination is None else illumination.apply(rendered, k)
             names[side] = f"{side}_{k:0{digits}d}.png"
             atomic_write_image(out_dir / names[side], to_image_dtype(noise.apply(image, seed=image_seed), 8))
         files.append(names)
     return files
 
 
-def render_info(rig: StereoRig, rig_scale, spp: int, seed: int, noise_grey: float) -> dict:
+def render_info(rig: StereoRig, rig_scale, spp: int, seed: int, noise_grey: float,
+                mc_target_grey: float | None = None, mc_log: list | None = None) -> dict:
     """The ``render`` and ``rig`` entries of a rendered sequence's truth.json."""
-    return {"render": {"spp": int(spp), "seed": int(seed), "bit_depth": 8, "read_noise_grey": float(noise_grey),
-                       "exposure_grey": EXPOSURE_GREY[8]},
+    adaptive = {} if mc_target_grey is None else {"mc_target_grey": float(mc_target_grey), "mc": mc_log or []}
+    return {"render": {"spp": "adaptive" if mc_target_grey is not None else int(spp), **adaptive, "seed": int(seed),
+                       "bit_depth": 8, "read_noise_grey": float(noise_grey), "exposure_grey": EXPOSURE_GREY[8]},
             "rig": {"name": rig.name, "scale": rig_scale,
                     "R_right_from_left": np.asarray(rig.R_right_from_left).tolist(),
                     "T_right_from_left_mm": np.asarray(rig.T_right_from_left_mm).tolist(),

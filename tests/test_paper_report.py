@@ -1,0 +1,184 @@
+"""`workbench reproduce paper`: resume after an interruption, and the report as a reader sees it.
+
+The report test assembles a paper run from the committed experiment reports (their metrics.json, report.md and
+PNG figures, made by the real commands), writes report.md / report.html, and reads the HTML back with the
+standard library's parser: every figure the experiments' reports embed must decode to an image of the same
+pixel size as its PNG, every Markdown table must come out as an HTML table with the same number of rows, and the
+summary's figures must be those in the metrics files (read here independently).
+"""
+from __future__ import annotations
+
+import base64
+import html.parser
+import io
+import json
+import re
+import shutil
+from pathlib import Path
+
+import matplotlib.image
+import numpy as np
+import pytest
+
+from workbench.experiments import paper
+from workbench.experiments.paper import STAGES, PaperSettings, reproduce_paper, stage_done, write_paper_report
+
+REPORTS = Path(__file__).resolve().parents[1] / "reports"
+COMMITTED = {"calibration": "calibration", "rigid_motion": "rigid_motion", "bending": "bending",
+             "depth_of_field": "depth_of_field"}
+
+
+class _Reader(html.parser.HTMLParser):
+    """Tables (rows of cell texts) and images (alt, data) as a browser would see them."""
+
+    def __init__(self):
+        super().__init__()
+        self.tables, self.images, self._cell, self._row = [], [], None, None
+
+    def handle_starttag(self, tag, attrs):
+        a = dict(attrs)
+        if tag == "table":
+            self.tables.append([])
+        elif tag == "tr":
+            self._row = []
+        elif tag in ("td", "th"):
+            self._cell = []
+        elif tag == "img":
+            self.images.append((a.get("alt", ""), a.get("src", "")))
+
+    def handle_endtag(self, tag):
+        if tag in ("td", "th") and self._cell is not None:
+            self._row.append("".join(self._cell).strip())
+            self._cell = None
+        elif tag == "tr" and self._row is not None:
+            self.tables[-1].append(self._row)
+            self._row = None
+
+    def handle_data(self, data):
+        if self._cell is not None:
+            self._cell.append(data)
+
+
+def _markdown_tables(md: str) -> list[int]:
+    """Body-row counts of the pipe tables of a Markdown text (header + separator + rows)."""
+    counts, lines, i = [], md.splitlines(), 0
+    while i < len(lines) - 1:
+        if lines[i].startswith("|") and re.match(r"^\|\s*:?-{3,}", lines[i + 1]):
+            j = i + 2
+            while j < len(lines) and lines[j].startswith("|"):
+                j += 1
+            counts.append(j - i - 2)
+            i = j
+        else:
+            i += 1
+    return counts
+
+
+@pytest.fixture()
+def assembled(tmp_path):
+    """A paper-run folder made of the committed experiment reports."""
+    out = tmp_path / "paper"
+    for stage, folder in COMMITTED.items():
+        src = REPORTS / folder
+        if not (src / "metrics.json").is_file():
+            pytest.skip(f"committed report {src} is missing")
+        dst = out / stage
+        dst.mkdir(parents=True)
+        for f in src.iterdir():
+            if f.is_file() and f.suffix in (".json", ".md", ".png"):
+                shutil.copy(f, dst / f.name)
+    return out
+
+
+def test_report_html_embeds_every_figure_and_table_of_the_experiment_reports(assembled):
+    settings = PaperSettings.for_mode(False)
+    write_paper_report(assembled, settings, {s: {"seconds": 60.0, "this_run": "ran"} for s, _, _ in STAGES}, 240.0)
+    doc = (assembled / "report.html").read_text()
+    reader = _Reader()
+    reader.feed(doc)
+    # every image of every stage report, embedded and decodable to the same pixel size as the PNG on disk
+    expected = []
+    for stage, _, _ in STAGES:
+        for alt, name in re.findall(r"!\[([^\]]*)\]\(([^)]+)\)", (assembled / stage / "report.md").read_text()):
+            expected.append(matplotlib.image.imread(assembled / stage / name).shape[:2])
+    assert len(reader.images) == len(expected) > 0
+    for (alt, src), shape in zip(reader.images, expected):
+        assert src.startswith("data:image/png;base64,"), alt
+        decoded = matplotlib.image.imread(io.BytesIO(base64.b64decode(src.split(",", 1)[1])), format="png")
+        assert decoded.shape[:2] == shape, alt
+    # every Markdown table of report.md is an HTML table with the same number of body rows
+    md_rows = _markdown_tables((assembled / "report.md").read_text())
+    html_rows = [len(t) - 1 for t in reader.tables]
+    assert html_rows == md_rows and all(n > 0 for n in html_rows)
+    # nothing outside the file is referenced
+    assert not re.search(r"<(script|link)\b", doc) and "src=\"http" not in doc
+
+
+def test_summary_figures_are_the_ones_in_the_metrics_files(assembled):
+    summary = write_paper_report(assembled, PaperSettings.for_mode(False), {}, 1.0)
+    cal = json.loads((assembled / "calibration" / "metrics.json").read_text())["models"]["rmm"]
+    rows = {g["figure"]: g for g in summary["goals"]}
+    left = rows["reprojection RMS, left (px)"]
+    assert float(left["ours"]) == pytest.approx(cal["reprojection_rms_px"]["left"], abs=5e-5)
+    assert left["met"] == (cal["reprojection_rms_px"]["left"] <= 0.3479)
+    pf = rows["Fig 5 plane-fit RMSE (µm)"]
+    assert float(pf["ours"]) == pytest.approx(cal["validation_plane_fit"]["rmse_um"], abs=5e-3)
+    bend = json.loads((assembled / "bending" / "metrics.json").read_text())
+    at = next(r for r in bend["states"] if r.get("load_N") == 1800.0)
+    w = rows["W RMSE vs FE truth at 1800 N (µm)"]
+    assert float(w["ours"]) == pytest.approx(at["U_rmse_um"][2], abs=5e-4)
+    # the summary table in report.md lists every goal with pass/fail, as many as the summary has
+    md = (assembled / "report.md").read_text()
+    section = md.split("## Summary of the goal figures", 1)[1].split("## Run", 1)[0]
+    results = re.findall(r"\| (pass|fail|—) \|$", section, flags=re.M)
+    assert len(results) == len(summary["goals"])
+    assert results.count("pass") == sum(1 for g in summary["goals"] if g["met"])
+
+
+def test_goals_in_um_scale_with_the_pixel_footprint(assembled):
+    full = {g["figure"]: g for g in paper.goal_rows(assembled, PaperSettings.for_mode(False))}
+    quarter = {g["figure"]: g for g in paper.goal_rows(assembled, PaperSettings.for_mode(True))}
+    key = "Fig 5 plane-fit RMSE (µm)"
+    assert float(quarter[key]["goal"].split()[-1]) == pytest.approx(4 * float(full[key]["goal"].split()[-1]))
+    key = "reprojection RMS, left (px)"
+    assert quarter[key]["goal"] == full[key]["goal"]          # pixels do not scale
+
+
+def test_an_interrupted_run_continues_from_the_completed_stages(tmp_path, monkeypatch):
+    """Ctrl-C in stage 2: stage 1 is kept on the rerun, stage 2 runs again, and no stage counts as complete
+    before its own files are written."""
+    calls = []
+
+    def fake_stage(stage, folder, settings, store, progress):
+        calls.append(stage)
+        if stage == "rigid_motion" and calls.count("rigid_motion") == 1:
+            (folder).mkdir(parents=True, exist_ok=True)
+            (folder / "half-written.tmp").write_text("x")
+            raise KeyboardInterrupt
+        folder.mkdir(parents=True, exist_ok=True)
+        (folder / "metrics.json").write_text("{}")
+        (folder / "report.md").write_text(f"# {stage}\n\nok\n")
+        return {}
+
+    monkeypatch.setattr(paper, "_run_stage", fake_stage)
+    monkeypatch.setattr(paper, "goal_rows", lambda out, s: [])
+    monkeypatch.setattr(paper, "_idics_for", lambda stage, m, s: [])
+    settings = PaperSettings.for_mode(True)
+    out = tmp_path / "run"
+    with pytest.raises(KeyboardInterrupt):
+        reproduce_paper(out, settings, log=lambda *a: None)
+    assert stage_done(out, "calibration", settings) is not None
+    assert stage_done(out, "rigid_motion", settings) is None
+    assert not (out / "report.html").exists()
+    reproduce_paper(out, settings, log=lambda *a: None)
+    assert calls == ["calibration", "rigid_motion", "rigid_motion", "bending", "depth_of_field"]
+    # other settings: nothing is kept
+    other = PaperSettings.for_mode(True, mc_target_grey=0.2)
+    assert all(stage_done(out, s, other) is None for s, _, _ in STAGES)
+    assert (out / "report.html").is_file() and (out / "summary.json").is_file()
+
+
+@pytest.mark.parametrize("scale", [0.0, 1.5])
+def test_a_scale_outside_0_1_is_refused(scale):
+    with pytest.raises(ValueError, match=r"--scale must be in \(0, 1\]"):
+        PaperSettings.for_mode(False, scale=scale)
