@@ -225,7 +225,8 @@ def _best_of(fn, repeat: int) -> tuple[float, object]:
     return min(times), result
 
 
-def render_pair_both(scale: float = 1.0, spp: int = 64, repeat: int = 1, seed: int = 0) -> dict:
+def render_pair_both(scale: float = 1.0, spp: int = 64, repeat: int = 1, seed: int = 0,
+                     mc_target_grey: float | None = None) -> dict:
     """Render the stereo pair with both renderers and time them.
 
     Returns ``{"scene": PlateScene, "rows": [row, ...]}``; each row has ``renderer``, ``width``, ``height``,
@@ -240,6 +241,20 @@ def render_pair_both(scale: float = 1.0, spp: int = 64, repeat: int = 1, seed: i
     t_ours, img_ours = _best_of(lambda k: render_ours(scene, spp, seed=seed + 2 * k), repeat)
     rows.append(dict(renderer=f"ours (Mitsuba {VARIANT})", spp=spp, seconds=t_ours, images=img_ours,
                      per_pixel=f"{spp} stratified-jittered MC rays, box filter, bilinear texture"))
+    if mc_target_grey is not None:
+        from scenes.adaptive import AdaptiveSettings, render_views_adaptive
+
+        def adaptive(k):
+            return render_views_adaptive([(scene.specs[s], scene.poses[s]) for s in ("left", "right")],
+                                         [scene.surface], seed=seed + 2 * k,
+                                         settings=AdaptiveSettings(target_mc_grey=mc_target_grey))
+        t_ad, res = _best_of(adaptive, repeat)
+        traced = float(np.mean([r.mc["sensor_spp"] for r in res]))
+        rows.append(dict(renderer="ours, adaptive (scenes.adaptive)", spp=traced, seconds=t_ad,
+                         images=[r.image_grey for r in res],
+                         per_pixel=f"adaptive stratified MC, target {mc_target_grey:g} grey RMS, measured "
+                                   + " / ".join(f"{r.mc['mc_rms_grey']:.3f}" for r in res)
+                                   + f" grey; spp = samples traced per sensor pixel, pilot and checks included"))
     t_riley, img_riley = _best_of(lambda k: render_riley(scene, mesh, spp), repeat)
     rows.append(dict(renderer="riley (rasteriser)", spp=n * n, seconds=t_riley, images=img_riley,
                      per_pixel=f"regular {n} x {n} sub-pixel grid, box average, bilinear texture"))
@@ -271,7 +286,7 @@ def format_table(result: dict, spp_asked: int, repeat: int) -> str:
         f"{'renderer':34s} {'image size':>12s} {'spp':>5s} {'s / stereo pair':>16s} {'Msamples/s':>11s}",
     ]
     for r in result["rows"]:
-        lines.append(f"{r['renderer']:34s} {r['width']:>5d} x {r['height']:<4d} {r['spp']:>5d} "
+        lines.append(f"{r['renderer']:34s} {r['width']:>5d} x {r['height']:<4d} {r['spp']:>5.4g} "
                      f"{r['seconds']:>16.3f} {r['msamples_per_s']:>11.1f}")
     lines.append("")
     for r in result["rows"]:
@@ -287,12 +302,14 @@ def main(argv=None) -> None:
     ap.add_argument("--scale", type=float, default=1.0)
     ap.add_argument("--spp", type=int, default=64)
     ap.add_argument("--repeat", type=int, default=2)
+    ap.add_argument("--mc-target-grey", type=float, default=0.3,
+                    help="also time our adaptive renderer at this Monte-Carlo noise target (0: skip)")
     ap.add_argument("--out", default="reports/render_peer_riley/benchmark.txt")
     ap.add_argument("--check", action="store_true", help="quick smoke run: scale 0.1, 4 spp, 1 repeat, no file")
     args = ap.parse_args(argv)
     if args.check:
         args.scale, args.spp, args.repeat = 0.1, 4, 1
-    result = render_pair_both(args.scale, args.spp, args.repeat)
+    result = render_pair_both(args.scale, args.spp, args.repeat, mc_target_grey=args.mc_target_grey or None)
     table = format_table(result, args.spp, args.repeat)
     print(table, end="")
     if not args.check:

@@ -50,10 +50,12 @@ def _table(rows: list[tuple[str, str]]) -> list[str]:
 
 def hardware_rows(rig, *, lens: str, f_number: float | None, focal_length_mm: dict | None, stand_off_mm: float,
                   read_noise_grey: float, mc_rms_grey: float | None, pattern: str, feature_px: float | None,
-                  target: str, bit_depth: int = 8) -> list[tuple[str, str]]:
-    """Hardware rows of the guide for a rendered stereo rig (``rig``: :class:`workbench.rigs.StereoRig`)."""
+                  target: str, bit_depth: int = 8, footprint_mm: float | None = None) -> list[tuple[str, str]]:
+    """Hardware rows of the guide for a rendered stereo rig (``rig``: :class:`workbench.rigs.StereoRig`).
+
+    ``footprint_mm``: the object-side size of a left pixel where the specimen is (default stand-off / fx)."""
     left, right = rig.left, rig.right
-    footprint_mm = stand_off_mm / left.fx
+    footprint_mm = footprint_mm or stand_off_mm / left.fx
     fov = (left.width * footprint_mm, left.height * footprint_mm)
     image_distance = {s: rig.camera(s).fx * rig.pixel_pitch_mm for s in ("left", "right")}
     if lens == "thin":
@@ -80,7 +82,7 @@ def hardware_rows(rig, *, lens: str, f_number: float | None, focal_length_mm: di
         ("field of view", f"{fov[0]:.1f} × {fov[1]:.1f} mm at the stand-off distance"),
         ("image scale", f"{1e3 * footprint_mm:.2f} µm/px ({1 / footprint_mm:.1f} px/mm)"),
         ("stereo angle", f"{_rotation_deg(rig.R_right_from_left):.2f}° (angle between the cameras' frames)"),
-        ("stand-off distance", f"{stand_off_mm:.1f} mm (left camera to the specimen centre)"),
+        ("stand-off distance", f"{stand_off_mm:.1f} mm (left camera to the specimen, along the left optical axis)"),
         ("image noise", noise),
         ("patterning technique", pattern),
         ("feature size", "—" if feature_px is None else f"{feature_px:.1f} px ({feature_px * footprint_mm:.3f} mm)"),

@@ -7,6 +7,7 @@ import numpy as np
 
 from measurement.files import atomic_write_text
 from workbench.manifest import save_figure
+from workbench.experiments.calibration import render_text
 from workbench.rigs import paper_values
 
 #: Goals at the 1800 N state (issue: displacement in um, strain as a fraction of the peak truth strain, mm).
@@ -149,7 +150,7 @@ def write_bending_report(out_dir: Path, metrics: dict, maps: dict) -> None:
              f"{metrics['vsg_px']} px = {metrics['vsg_px'] * metrics['pixel_footprint_mm']:.2f} mm at "
              f"{1e3 * metrics['pixel_footprint_mm']:.1f} µm per pixel); {metrics['points']} points of interest. "
              f"Loads: reference {p['reference_load_N']} N, then {p['load_step_N']} -> {p['max_load_N']} N "
-             f"(paper). Renders: {metrics['spp']} spp, 8 bit, read noise σ = {metrics['noise_grey']} grey.", "",
+             f"(paper). Renders: {render_text(metrics)}, 8 bit, read noise σ = {metrics['noise_grey']} grey.", "",
              f"Truth: linear-elastic 3-D FE (scikit-fem) of the {beam.get('length_mm')} x {beam.get('height_mm')} x "
              f"{beam.get('thickness_mm')} mm aluminium beam (E = {beam.get('youngs_modulus_mpa')} MPa, ν = {beam.get('poisson_ratio')}); "
              "every surface vertex of the rendered beam moves by the FE displacement of its load; the truth of a "

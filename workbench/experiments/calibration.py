@@ -93,6 +93,15 @@ def render_content(spp: int, mc_target_grey: float | None) -> dict:
     return {"spp": spp} if mc_target_grey is None else {"spp": "adaptive", "mc_target_grey": float(mc_target_grey)}
 
 
+def render_text(metrics: dict) -> str:
+    """'64 spp', or the adaptive renders' target and measured Monte-Carlo noise (for report text)."""
+    if metrics.get("spp") != "adaptive":
+        return f"{metrics['spp']} spp"
+    measured = (metrics.get("render_mc") or {}).get("mc_rms_grey", {}).get("median")
+    return (f"adaptive sampling, Monte-Carlo noise target {metrics['mc_target_grey']:g} grey RMS"
+            + ("" if measured is None else f" (measured {measured:.3f} median)"))
+
+
 def mc_summary(records: list) -> dict | None:
     """Per-dataset figures of adaptive renders (:mod:`scenes.adaptive`): measured MC noise and sample counts."""
     records = [r for r in records if r]
@@ -210,7 +219,7 @@ def write_calibration_report(metrics: dict, out_dir: Path) -> None:
     w, h = metrics["image_size_px"]
     lines = ["# Calibration: the paper's stepwise Scheimpflug stereo calibration on the rendered rig", "",
              f"{metrics['calibration_views']} calibration + {metrics['validation_views']} validation stereo views of "
-             f"the 12 × 9-square, 5 mm board, {w} × {h} px (scale {scale}), {metrics['spp']} spp, 8-bit, "
+             f"the 12 × 9-square, 5 mm board, {w} × {h} px (scale {scale}), {render_text(metrics)}, 8-bit, "
              f"σ = {metrics['noise_grey']} grey level read noise. Step 1 tilt guess (datasheet): left "
              f"{tuple(metrics['datasheet_tilt_deg']['left'])}°, right {tuple(metrics['datasheet_tilt_deg']['right'])}°. "
              f"Rendering {metrics['render_s']}{'' if metrics['render_s'] == 'reused' else ' s'}, corner detection {metrics.get('detection_s', '?')} s "

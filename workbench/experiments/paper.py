@@ -295,11 +295,15 @@ def _idics_for(stage: str, m: dict, settings: PaperSettings) -> list[str]:
         return idics.idics_section(hw, an, level=3)
     lens = m.get("lens", "pinhole")
     thin = m.get("thin_lens", {}) if stage == "bending" else {}
-    stand_off = float(np.linalg.norm(common_view_centre_mm(rig)))
+    # where the specimen really is: the experiment's own pixel footprint (rigid motion: at its face)
+    footprint = m.get("pixel_footprint_mm") or m.get("dic_noise_floor", {}).get("pixel_footprint_mm")
+    stand_off = footprint * rig.left.fx if footprint else float(np.linalg.norm(common_view_centre_mm(rig)))
+    if footprint and spec.get("speckle_mm"):
+        speckle_px = spec["speckle_mm"] / footprint
     hw = idics.hardware_rows(rig, lens=lens, f_number=thin.get("f_number"), focal_length_mm=thin.get("focal_length_mm"),
                              stand_off_mm=stand_off, read_noise_grey=m.get("noise_grey", 1.0), mc_rms_grey=mc,
                              pattern="rendered speckle texture (band-limited random speckle, seeded)",
-                             feature_px=speckle_px, target=m["calibration"])
+                             feature_px=speckle_px, target=m["calibration"], footprint_mm=footprint)
     if stage == "rigid_motion":
         nf = m["dic_noise_floor"]
         an = idics.analysis_rows(subset_px=m["subset_px"], step_px=m["step_px"], order=2, strain_window="—",
