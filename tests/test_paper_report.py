@@ -154,7 +154,7 @@ def test_an_interrupted_run_continues_from_the_completed_stages(tmp_path, monkey
         if stage == "rigid_motion" and calls.count("rigid_motion") == 1:
             (folder).mkdir(parents=True, exist_ok=True)
             (folder / "half-written.tmp").write_text("x")
-            raise KeyboardInterrupt
+            raise KeyboardInterrupt("interrupted in rigid_motion")
         folder.mkdir(parents=True, exist_ok=True)
         (folder / "metrics.json").write_text("{}")
         (folder / "report.md").write_text(f"# {stage}\n\nok\n")
@@ -165,7 +165,7 @@ def test_an_interrupted_run_continues_from_the_completed_stages(tmp_path, monkey
     monkeypatch.setattr(paper, "_idics_for", lambda stage, m, s: [])
     settings = PaperSettings.for_mode(True)
     out = tmp_path / "run"
-    with pytest.raises(KeyboardInterrupt):
+    with pytest.raises(KeyboardInterrupt, match="interrupted in rigid_motion"):
         reproduce_paper(out, settings, log=lambda *a: None)
     assert stage_done(out, "calibration", settings) is not None
     assert stage_done(out, "rigid_motion", settings) is None

@@ -90,7 +90,7 @@ def test_ours_sees_the_plate_over_every_pixel(result):
 def test_riley_sub_sample_is_a_square_grid():
     assert [bench.riley_sub_sample(s) for s in (1, 4, 16, 64, 100)] == [1, 2, 4, 8, 10]
     assert bench.riley_sub_sample(50) ** 2 == 49
-    with pytest.raises(ValueError):
+    with pytest.raises(ValueError, match="spp must be >= 1, got 0"):
         bench.riley_sub_sample(0)
 
 

@@ -266,12 +266,14 @@ def _idics_for(stage: str, m: dict, settings: PaperSettings) -> list[str]:
                                  feature_px=None,
                                  target=f"12 × 9-square checkerboard, 5 mm squares; {m['calibration_views']} calibration "
                                         f"+ {m['validation_views']} validation views")
-        an = idics.analysis_rows(subset_px=None, step_px=None, order=None, strain_window="—", vsg_px=None,
-                                 strain_formulation="—", noise_floor="—", strain_noise_floor="—")
-        an[3:9] = [("corner detection", "OpenCV findChessboardCornersSB" + (" + saddle refinement"
-                                                                            if m.get("corner_refinement") not in (None, "none") else "")),
-                   ("camera model", "the paper's RMM (eqs 1-7): fx, fy, cx, cy, α, β, k1, k2, p1, p2"),
-                   ("calibration", "the paper's five-step stepwise calibration, then joint refinement")]
+        refined = m.get("corner_refinement") not in (None, "none")
+        an = [("calibration software", idics.software_version() + ", `measurement/calibration/`"),
+              ("image filtering", "none"),
+              ("corner detection", "OpenCV findChessboardCornersSB" + (" + saddle refinement" if refined else "")),
+              ("camera model", "the paper's RMM (eqs 1-7): fx, fy, cx, cy, α, β, k1, k2, p1, p2"),
+              ("calibration", "the paper's five-step stepwise calibration, then joint refinement"),
+              ("reprojection RMS", " / ".join(f"{v:.4f}" for v in m["models"]["rmm"]["reprojection_rms_px"].values())
+               + " px (left / right)")]
         return idics.idics_section(hw, an, level=3)
     truth = idics.truth_of(m.get("images", ""))
     rig_name = m.get("rig", "paper")
