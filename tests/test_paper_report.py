@@ -162,7 +162,7 @@ def test_an_interrupted_run_continues_from_the_completed_stages(tmp_path, monkey
 
     monkeypatch.setattr(paper, "_run_stage", fake_stage)
     monkeypatch.setattr(paper, "goal_rows", lambda out, s: [])
-    monkeypatch.setattr(paper, "_idics_for", lambda stage, m, s: [])
+    monkeypatch.setattr(paper, "_idics_for", lambda stage, m, level=2: [])
     settings = PaperSettings.for_mode(True)
     out = tmp_path / "run"
     with pytest.raises(KeyboardInterrupt, match="interrupted in rigid_motion"):
@@ -182,3 +182,23 @@ def test_an_interrupted_run_continues_from_the_completed_stages(tmp_path, monkey
 def test_a_scale_outside_0_1_is_refused(scale):
     with pytest.raises(ValueError, match=r"--scale must be in \(0, 1\]"):
         PaperSettings.for_mode(False, scale=scale)
+
+
+def test_every_experiment_report_gets_the_idics_tables_once(assembled):
+    """The guide's hardware and analysis tables go into each experiment's own report.md (not only the paper's),
+    filled from the run: the image resolution row is the metrics' image size, the subset row the metrics' subset."""
+    from workbench.experiments.paper import IDICS_HEADING, append_idics
+
+    for stage, _, _ in STAGES:
+        m = json.loads((assembled / stage / "metrics.json").read_text())
+        append_idics(assembled / stage, stage, m)
+        append_idics(assembled / stage, stage, m)               # idempotent
+        text = (assembled / stage / "report.md").read_text()
+        assert text.count(IDICS_HEADING) == 1, stage
+        section = text.split(IDICS_HEADING, 1)[1]
+        assert section.count("| item | value |") == 2, stage
+        if stage == "calibration":
+            w, h = m["image_size_px"]
+            assert f"| image resolution | {w} × {h} px |" in section
+        if "subset_px" in m:
+            assert f"| subset size | {m['subset_px']} px |" in section, stage

@@ -230,6 +230,8 @@ def reproduce_bending(out_dir: str | Path, *, scale: float = 1.0, rig_name: str 
     from workbench.experiments.bending_report import write_bending_report
     write_bending_report(out_dir, metrics, maps)          # adds metrics["goals"]
     atomic_write_text(out_dir / "metrics.json", json.dumps(metrics, indent=2))
+    from workbench.experiments.paper import append_idics
+    append_idics(out_dir, "bending", metrics)
     return metrics
 
 

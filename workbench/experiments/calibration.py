@@ -188,6 +188,8 @@ def reproduce_calibration(out_dir: Path, *, scale: float = 1.0, seed: int = 0, s
         metrics["models"][model] = m
     atomic_write_text(out_dir / "metrics.json", json.dumps(metrics, indent=1))
     write_calibration_report(metrics, out_dir)
+    from workbench.experiments.paper import append_idics
+    append_idics(out_dir, "calibration", metrics)
     return metrics
 
 

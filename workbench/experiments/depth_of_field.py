@@ -304,4 +304,6 @@ def reproduce_depth_of_field(out_dir, *, scale: float = 1.0, object_tilt_deg: fl
         f"MIG ratio {metrics['mig_ratio']:.2f} (paper {paper['MIG_scheimpflug'] / paper['MIG_conventional']:.2f}). "
         "Absolute MIG depends on speckle size and contrast (not given in the paper); compare the ratio.", "",
         "![maps](dic_maps.png)", "", "Left: Scheimpflug; right: untilted.", "", "![side by side](side_by_side.png)", ""]))
+    from workbench.experiments.paper import append_idics
+    append_idics(out_dir, "depth_of_field", metrics)
     return metrics

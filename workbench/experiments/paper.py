@@ -253,13 +253,13 @@ def _metrics(out_dir: Path, stage: str) -> dict | None:
 
 # ------------------------------------------------------------------------------------------------------------
 # iDICs tables per experiment
-def _idics_for(stage: str, m: dict, settings: PaperSettings) -> list[str]:
+def _idics_for(stage: str, m: dict, level: int = 2) -> list[str]:
     from workbench.poses import common_view_centre_mm
     from workbench.rigs import get_rig
 
     mc = (m.get("render_mc") or {}).get("mc_rms_grey", {}).get("median")
     if stage == "calibration":
-        rig = get_rig(m.get("rig", "paper"), settings.scale)
+        rig = get_rig(m.get("rig", "paper"), m["scale"])
         hw = idics.hardware_rows(rig, lens="pinhole", f_number=None, focal_length_mm=None,
                                  stand_off_mm=float(np.linalg.norm(common_view_centre_mm(rig))),
                                  read_noise_grey=m["noise_grey"], mc_rms_grey=mc, pattern="checkerboard (rendered)",
@@ -274,10 +274,10 @@ def _idics_for(stage: str, m: dict, settings: PaperSettings) -> list[str]:
               ("calibration", "the paper's five-step stepwise calibration, then joint refinement"),
               ("reprojection RMS", " / ".join(f"{v:.4f}" for v in m["models"]["rmm"]["reprojection_rms_px"].values())
                + " px (left / right)")]
-        return idics.idics_section(hw, an, level=3)
+        return idics.idics_section(hw, an, level=level)
     truth = idics.truth_of(m.get("images", ""))
     rig_name = m.get("rig", "paper")
-    rig = get_rig(rig_name, settings.scale if stage != "depth_of_field" else settings.dof_scale)
+    rig = get_rig(rig_name, m["scale"])
     speckle_px = None
     spec = truth.get("specimen", {})
     if spec.get("speckle_mm") and rig is not None:
@@ -294,7 +294,7 @@ def _idics_for(stage: str, m: dict, settings: PaperSettings) -> list[str]:
                                  noise_floor=f"tilted {cams['scheimpflug']['noise_floor_px']['u']:.4f} px, untilted "
                                              f"{cams['conventional']['noise_floor_px']['u']:.4f} px (σu, static pair)",
                                  strain_noise_floor="—")
-        return idics.idics_section(hw, an, level=3)
+        return idics.idics_section(hw, an, level=level)
     lens = m.get("lens", "pinhole")
     thin = m.get("thin_lens", {}) if stage == "bending" else {}
     # where the specimen really is: the experiment's own pixel footprint (rigid motion: at its face)
@@ -325,7 +325,7 @@ def _idics_for(stage: str, m: dict, settings: PaperSettings) -> list[str]:
                                  strain_noise_floor="—" if first is None else
                                  f"{first['strain_magnitude_rmse_vs_filtered_ue']:.1f} µε RMSE vs the windowed truth at "
                                  f"{first['load_N']:g} N")
-    return idics.idics_section(hw, an, level=3)
+    return idics.idics_section(hw, an, level=level)
 
 
 # ------------------------------------------------------------------------------------------------------------
@@ -401,14 +401,29 @@ def write_paper_report(out_dir: Path, settings: PaperSettings, timings: dict, to
         if not report.is_file() or m is None:
             lines += ["Not run (the stage did not complete).", ""]
             continue
-        body = _demote(report.read_text(), stage)
-        lines += [body, ""] + _render_lines(m) + _idics_for(stage, m, settings)
+        text = report.read_text()
+        if IDICS_HEADING not in text:                 # a report written before the section existed
+            text += "\n" + "\n".join(_render_lines(m) + _idics_for(stage, m))
+        lines += [_demote(text, stage), ""]
     md = "\n".join(lines) + "\n"
     atomic_write_text(out_dir / "report.md", md)
     write_html_report(out_dir / "report.html", "The paper, reproduced", md, out_dir)
     summary = {"settings": asdict(settings), "goals": goals, "timings": timings, "total_s": total_s}
     atomic_write_text(out_dir / "summary.json", json.dumps(summary, indent=1))
     return summary
+
+
+IDICS_HEADING = "iDICs Good Practices: hardware and analysis"
+
+
+def append_idics(out_dir: str | Path, stage: str, metrics: dict) -> None:
+    """Append the render figures and the iDICs Good Practices tables to an experiment's ``report.md``
+    (``stage``: calibration, rigid_motion, bending or depth_of_field); a report that has them is left alone."""
+    path = Path(out_dir) / "report.md"
+    text = path.read_text()
+    if IDICS_HEADING in text:
+        return
+    atomic_write_text(path, text.rstrip("\n") + "\n\n" + "\n".join(_render_lines(metrics) + _idics_for(stage, metrics)))
 
 
 def _render_lines(m: dict) -> list[str]:
@@ -421,4 +436,4 @@ def _render_lines(m: dict) -> list[str]:
             f"of the sensor, {r['seconds_per_image']:.1f} s per image.", ""]
 
 
-__all__ = ["PaperSettings", "STAGES", "goal_rows", "reproduce_paper", "stage_done", "write_paper_report"]
+__all__ = ["PaperSettings", "STAGES", "append_idics", "goal_rows", "reproduce_paper", "stage_done", "write_paper_report"]

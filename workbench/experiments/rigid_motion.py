@@ -217,6 +217,8 @@ def reproduce_rigid_motion(out_dir: str | Path, *, scale: float = 1.0, calib: st
     atomic_write_text(out_dir / "metrics.json", json.dumps(metrics, indent=2))
     _plot(out_dir / "fig6.png", measured, rig_text)
     _report(out_dir / "report.md", metrics)
+    from workbench.experiments.paper import append_idics
+    append_idics(out_dir, "rigid_motion", metrics)
     return metrics
 
 
