@@ -4,16 +4,18 @@ A camera-frame point ``X_cam = (X, Y, Z)`` (OpenCV frame: x right, y down, z for
 the tilted sensor in four steps:
 
 1. normalise on the ideal image plane I_O:           ``x_n = X / Z, y_n = Y / Z``
-2. Brown distortion on I_O (eq 7, written out, with the r^6 term k3):
-                                                     ``x_d = x_n (1 + k1 r^2 + k2 r^4 + k3 r^6) + 2 p1 x_n y_n + p2 (r^2 + 2 x_n^2)``
-                                                     ``y_d = y_n (1 + k1 r^2 + k2 r^4 + k3 r^6) + 2 p2 x_n y_n + p1 (r^2 + 2 y_n^2)``
+2. Brown distortion on I_O (eq 7, written out, with the r^6 term k3 and OpenCV's thin prism s1-s4):
+                                                     ``x_d = x_n (1 + k1 r^2 + k2 r^4 + k3 r^6) + 2 p1 x_n y_n + p2 (r^2 + 2 x_n^2) + s1 r^2 + s2 r^4``
+                                                     ``y_d = y_n (1 + k1 r^2 + k2 r^4 + k3 r^6) + 2 p2 x_n y_n + p1 (r^2 + 2 y_n^2) + s3 r^2 + s4 r^4``
 3. the Scheimpflug tilt (eqs 3, 5, 6):                ``lambda [x_t, y_t, 1]^T = A R_S^T [x_d, y_d, 1]^T``
    with ``R_S = R_Y(beta) R_X(alpha)``
 4. the intrinsic matrix K (eq 2):                     ``u = fx x_t + skew y_t + cx, v = fy y_t + cy``
 
-The paper's model has ``k3 = skew = 0``; the two terms exist so that calibrations from other tools (OpenCV's 5-term
-vector, DICe, VIC-3D, MatchID, which all carry a radial r^6 term and a skew ``K[0, 1]``) load without loss. They are
-not part of :data:`INTRINSIC_NAMES` (the ten Table 1 parameters the calibration estimates).
+The paper's model has ``k3 = skew = s1..s4 = 0``; the terms exist so that calibrations from other tools (OpenCV's
+5-term vector, DICe, VIC-3D, MatchID, which all carry a radial r^6 term and a skew ``K[0, 1]``; OpenCV's 12-term vector
+with the thin prism s1-s4, a lens element decentred or tilted) load without loss, and so that the calibration can fit
+them where the data call for it (``lens="full"``). They are not part of :data:`INTRINSIC_NAMES` (the ten Table 1
+parameters of the paper's calibration).
 
 Pixel coordinates follow OpenCV: the centre of pixel (row i, column j) is at ``(u, v) = (j, i)``.
 
@@ -38,8 +40,12 @@ import numpy as np
 #: Parameter names of Table 1, in order.
 INTRINSIC_NAMES = ("fx", "fy", "cx", "cy", "alpha_deg", "beta_deg", "k1", "k2", "p1", "p2")
 
-#: Camera terms beyond Table 1 (k3: radial r^6; skew: K[0, 1] in px), 0 in the paper's model.
-_EXTRA_NAMES = ("k3", "skew")
+#: Camera terms beyond Table 1 (k3: radial r^6; skew: K[0, 1] in px; s1-s4: OpenCV's thin prism), 0 in the paper's
+#: model.
+EXTRA_NAMES = ("k3", "skew", "s1", "s2", "s3", "s4")
+_EXTRA_NAMES = EXTRA_NAMES
+#: The thin-prism terms: ``x_d += s1 r^2 + s2 r^4``, ``y_d += s3 r^2 + s4 r^4`` (OpenCV's order and meaning).
+THIN_PRISM_NAMES = ("s1", "s2", "s3", "s4")
 
 #: Tilt angles at or beyond this are refused: the tilted plane would be nearly parallel to the rays.
 MAX_TILT_DEG = 45.0
@@ -111,6 +117,9 @@ class ScheimpflugCamera:
         Radial r^6 term (OpenCV's k3); 0 in the paper's model.
     skew : float
         Skew in px, the ``K[0, 1]`` entry: ``u = fx x_t + skew y_t + cx``; 0 in the paper's model.
+    s1, s2, s3, s4 : float
+        Thin-prism distortion (OpenCV's s1-s4): ``x_d += s1 r^2 + s2 r^4``, ``y_d += s3 r^2 + s4 r^4``; 0 in the
+        paper's model.
     """
 
     fx: float
@@ -128,6 +137,10 @@ class ScheimpflugCamera:
     tilt_model: str = "rmm"
     k3: float = 0.0
     skew: float = 0.0
+    s1: float = 0.0
+    s2: float = 0.0
+    s3: float = 0.0
+    s4: float = 0.0
 
     def __post_init__(self):
         if self.tilt_model not in TILT_MODELS:
@@ -164,8 +177,8 @@ class ScheimpflugCamera:
         return cls(**kwargs)
 
     def to_dict(self) -> dict:
-        """Plain dict with Table 1 names plus ``width``, ``height`` and ``tilt_model``; ``k3`` and ``skew`` only when
-        non-zero, so that the dicts (and the hashes of files holding them) of cameras without them are unchanged."""
+        """Plain dict with Table 1 names plus ``width``, ``height`` and ``tilt_model``; ``k3``, ``skew`` and ``s1``-``s4``
+        only when non-zero, so that the dicts (and the hashes of files holding them) of cameras without them are unchanged."""
         d = asdict(self)
         for name in _EXTRA_NAMES:
             if d[name] == 0.0:
@@ -190,6 +203,10 @@ class ScheimpflugCamera:
         return np.array([[self.fx, self.skew, self.cx], [0.0, self.fy, self.cy], [0.0, 0.0, 1.0]])
 
     @property
+    def has_thin_prism(self) -> bool:
+        return any(getattr(self, n) != 0.0 for n in THIN_PRISM_NAMES)
+
+    @property
     def is_tilted(self) -> bool:
         return self.alpha_deg != 0.0 or self.beta_deg != 0.0
 
@@ -207,11 +224,12 @@ class ScheimpflugCamera:
             alpha_deg=self.alpha_deg, beta_deg=self.beta_deg,
             k1=self.k1, k2=self.k2, p1=self.p1, p2=self.p2,
             width=int(round(self.width * scale)), height=int(round(self.height * scale)), tilt_model=self.tilt_model,
-            k3=self.k3, skew=self.skew * scale)
+            k3=self.k3, skew=self.skew * scale, s1=self.s1, s2=self.s2, s3=self.s3, s4=self.s4)
 
     # ----------------------------------------------------------------------------------------------------
     def distort(self, xy_n: np.ndarray) -> np.ndarray:
-        """Apply Brown distortion (eq 7, plus the r^6 term k3) to ideal normalised coordinates, (N, 2) -> (N, 2)."""
+        """Apply Brown distortion (eq 7, plus the r^6 term k3 and the thin prism s1-s4) to ideal normalised
+        coordinates, (N, 2) -> (N, 2)."""
         xy_n = np.asarray(xy_n, dtype=float)
         x, y = xy_n[..., 0], xy_n[..., 1]
         r2 = x * x + y * y
@@ -219,6 +237,9 @@ class ScheimpflugCamera:
         radial = 1.0 + self.k1 * r2 + self.k2 * r2 * r2 + self.k3 * r2 * r2 * r2
         xd = x * radial + 2.0 * self.p1 * x * y + self.p2 * (r2 + 2.0 * x * x)
         yd = y * radial + 2.0 * self.p2 * x * y + self.p1 * (r2 + 2.0 * y * y)
+        if self.has_thin_prism:          # skipped when zero: cameras without it stay bit-identical
+            xd = xd + self.s1 * r2 + self.s2 * r2 * r2
+            yd = yd + self.s3 * r2 + self.s4 * r2 * r2
         return np.stack([xd, yd], axis=-1)
 
     def undistort(self, xy_d: np.ndarray, tol: float = 1e-13, max_iter: int = 50) -> np.ndarray:
@@ -229,7 +250,8 @@ class ScheimpflugCamera:
         """
         xy_d = np.asarray(xy_d, dtype=float)
         flat = np.ascontiguousarray(xy_d.reshape(-1, 2))
-        out = _undistort_newton(flat, self.k1, self.k2, self.k3, self.p1, self.p2, tol, max_iter)
+        out = _undistort_newton(flat, self.k1, self.k2, self.k3, self.p1, self.p2, self.s1, self.s2, self.s3, self.s4,
+                                tol, max_iter)
         return out.reshape(xy_d.shape)
 
     # ----------------------------------------------------------------------------------------------------
@@ -294,8 +316,9 @@ class ScheimpflugCamera:
 
 
 @numba.njit(cache=True)
-def _undistort_newton(xy_d, k1, k2, k3, p1, p2, tol, max_iter):
-    """Newton inversion of the Brown model (radial to r^6) per point; NaN where it does not converge.
+def _undistort_newton(xy_d, k1, k2, k3, p1, p2, s1, s2, s3, s4, tol, max_iter):
+    """Newton inversion of the Brown model (radial to r^6, thin prism s1-s4) per point; NaN where it does not
+    converge.
 
     (N, 2) -> (N, 2)."""
     out = np.empty_like(xy_d)
@@ -306,16 +329,18 @@ def _undistort_newton(xy_d, k1, k2, k3, p1, p2, tol, max_iter):
         for _ in range(max_iter):
             r2 = x * x + y * y
             radial = 1.0 + k1 * r2 + k2 * r2 * r2 + k3 * r2 * r2 * r2
-            rx = x * radial + 2.0 * p1 * x * y + p2 * (r2 + 2.0 * x * x) - xd
-            ry = y * radial + 2.0 * p2 * x * y + p1 * (r2 + 2.0 * y * y) - yd
+            rx = x * radial + 2.0 * p1 * x * y + p2 * (r2 + 2.0 * x * x) + s1 * r2 + s2 * r2 * r2 - xd
+            ry = y * radial + 2.0 * p2 * x * y + p1 * (r2 + 2.0 * y * y) + s3 * r2 + s4 * r2 * r2 - yd
             if abs(rx) <= tol and abs(ry) <= tol:
                 ok = True
                 break
             dradial = 2.0 * k1 + 4.0 * k2 * r2 + 6.0 * k3 * r2 * r2  # 2 d(radial)/d(r^2)
-            j11 = radial + x * dradial * x + 2.0 * p1 * y + 6.0 * p2 * x
-            j12 = x * dradial * y + 2.0 * p1 * x + 2.0 * p2 * y
-            j21 = y * dradial * x + 2.0 * p2 * y + 2.0 * p1 * x
-            j22 = radial + y * dradial * y + 2.0 * p2 * x + 6.0 * p1 * y
+            gx = 2.0 * s1 + 4.0 * s2 * r2    # d(s1 r^2 + s2 r^4) / d(r^2), times 2
+            gy = 2.0 * s3 + 4.0 * s4 * r2
+            j11 = radial + x * dradial * x + 2.0 * p1 * y + 6.0 * p2 * x + gx * x
+            j12 = x * dradial * y + 2.0 * p1 * x + 2.0 * p2 * y + gx * y
+            j21 = y * dradial * x + 2.0 * p2 * y + 2.0 * p1 * x + gy * x
+            j22 = radial + y * dradial * y + 2.0 * p2 * x + 6.0 * p1 * y + gy * y
             det = j11 * j22 - j12 * j21
             x -= (j22 * rx - j12 * ry) / det
             y -= (-j21 * rx + j11 * ry) / det
@@ -346,5 +371,6 @@ def opencv_tilted_model(camera: ScheimpflugCamera) -> tuple[np.ndarray, np.ndarr
             f"alpha={camera.alpha_deg} deg and beta={camera.beta_deg} deg (the rotation orders differ)")
     dist = np.zeros(14)
     dist[[0, 1, 2, 3, 4]] = camera.k1, camera.k2, camera.p1, camera.p2, camera.k3
+    dist[8:12] = camera.s1, camera.s2, camera.s3, camera.s4
     dist[12], dist[13] = camera.alpha_rad, camera.beta_rad
     return camera.K, dist

@@ -172,8 +172,8 @@ def closest_approach(centre_a_mm, direction_a, centre_b_mm, direction_b):
 def projection_jacobian(camera: ScheimpflugCamera, X_cam_mm: np.ndarray) -> np.ndarray:
     """Analytic Jacobian of :meth:`ScheimpflugCamera.project` with respect to the camera-frame point.
 
-    Chains normalisation (eq 1), Brown distortion (eq 7, with the r^6 term k3), the Scheimpflug homography of the
-    camera's own ``tilt_model`` (eqs 3-6 for ``"rmm"``, OpenCV's for ``"opencv"``) and K with its skew (eq 2).
+    Chains normalisation (eq 1), Brown distortion (eq 7, with the r^6 term k3 and the thin prism s1-s4), the
+    Scheimpflug homography of the camera's own ``tilt_model`` (eqs 3-6 for ``"rmm"``, OpenCV's for ``"opencv"``) and K with its skew (eq 2).
 
     Parameters
     ----------
@@ -200,6 +200,11 @@ def projection_jacobian(camera: ScheimpflugCamera, X_cam_mm: np.ndarray) -> np.n
     D01 = x * dradial * y + 2.0 * p1 * x + 2.0 * p2 * y
     D10 = y * dradial * x + 2.0 * p2 * y + 2.0 * p1 * x
     D11 = radial + y * dradial * y + 2.0 * p2 * x + 6.0 * p1 * y
+    if camera.has_thin_prism:            # x_d += s1 r^2 + s2 r^4, y_d += s3 r^2 + s4 r^4
+        gx = 2.0 * camera.s1 + 4.0 * camera.s2 * r2
+        gy = 2.0 * camera.s3 + 4.0 * camera.s4 * r2
+        D00, D01 = D00 + gx * x, D01 + gx * y
+        D10, D11 = D10 + gy * x, D11 + gy * y
     # tilt homography (the camera's own parametrisation), then K:
     # (x_t, y_t) = (h0 / h2, h1 / h2) with h = H [x_d, y_d, 1]; u = fx x_t + skew y_t + cx, v = fy y_t + cy
     xy_d = camera.distort(np.stack([x, y], axis=-1))

@@ -511,7 +511,8 @@ def test_a_plain_opencv_yaml_with_terms_the_model_lacks_is_refused_with_their_co
                                  - cv2.projectPoints(rays, np.zeros(3), np.zeros(3), K, without)[0].reshape(-1, 2),
                                  axis=1))
     with pytest.raises(ValueError, match=rf"k4\.yaml.*D1.*has k4 = 0\.2: this instrument's lens model has k1, k2, "
-                                         rf"p1, p2, k3 \(and tau_x, tau_y\) only; dropping the rest would move the "
+                                         rf"p1, p2, k3, s1-s4 \(and tau_x, tau_y\) only; dropping the rest would "
+                                         rf"move the "
                                          rf"image corners by up to {cost:.3g} px"):
         load_opencv_yaml(tmp_path / "k4.yaml")
     D_k3 = D_k4[:, :5]

@@ -216,7 +216,7 @@ def test_plain_opencv_yaml_with_k4_is_refused_with_its_pixel_cost(tmp_path):
     cost = np.max(np.linalg.norm(cv2.projectPoints(rays, np.zeros(3), np.zeros(3), K, D)[0].reshape(-1, 2)
                                  - cv2.projectPoints(rays, np.zeros(3), np.zeros(3), K, kept)[0].reshape(-1, 2), axis=1))
     with pytest.raises(FileFormatError, match=rf"k4\.yaml: key 'D1': has k4 = 0\.2: this instrument's lens model has "
-                                              rf"k1, k2, p1, p2, k3 .*up to {cost:.3g} px"):
+                                              rf"k1, k2, p1, p2, k3, s1-s4 .*up to {cost:.3g} px"):
         load_opencv_yaml(tmp_path / "k4.yaml")
 
 

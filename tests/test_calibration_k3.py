@@ -209,14 +209,15 @@ def test_brown5_calibration_file_round_trip(tmp_path, fits):
     assert "lens" not in json.loads(old.read_text()) and load_calibration(old).left == c4.left.camera
     doc["lens"] = "brown6"
     path.write_text(json.dumps(doc))
-    with pytest.raises(ValueError, match=r"lens.*must be one of 'brown4', 'brown5'"):
+    with pytest.raises(ValueError, match=r"lens.*must be one of 'brown4', 'brown5', 'full'"):
         load_calibration(path)
 
 
 def test_unknown_lens_is_refused(fits):
-    assert LENSES == ("brown4", "brown5")
+    assert LENSES == ("brown4", "brown5", "full")
     pts = np.zeros((3, len(BOARD_MM), 2))
-    with pytest.raises(ValueError, match=r"unknown lens model 'brown6'; choose one of brown4, brown5"):
+    with pytest.raises(ValueError, match=r"unknown lens model 'brown6'; choose one of brown4, brown5, full, k1k2p1p2, "
+                                         r"k1k2k3p1p2"):
         calibrate_stereo(pts, pts, BOARD_MM, (614, 514), lens="brown6")
     with pytest.raises(ValueError, match=r"unknown lens model 'k3'"):
         calibrate_camera(pts, BOARD_MM, (614, 514), lens="k3")

@@ -46,7 +46,87 @@ def _outer_square_value(gray: np.ndarray, corners: np.ndarray, nx: int, start: i
     return float(gray[y - r:y + r + 1, x - r:x + r + 1].mean())
 
 
-def detect_checkerboard(image: np.ndarray, pattern_size: tuple[int, int] = (11, 8)) -> np.ndarray | None:
+#: Images whose long side exceeds this are searched on a downscaled copy (:func:`detect_checkerboard`): OpenCV's
+#: detector costs 4-10 s on a 5 MP render and 1-2 s on a copy shrunk to 1280 px, with the same accuracy after
+#: :func:`saddle_points` at full size.
+DETECT_MAX_SIDE_PX = 1280
+
+
+def saddle_points(image: np.ndarray, corners: np.ndarray, half_px: int, sigma_px: float,
+                  iterations: int = 10) -> np.ndarray:
+    """Refine checkerboard corners to the saddle point of a quadratic fitted to the smoothed image around each.
+
+    The grey levels near an X-corner of a (Gaussian-)blurred checkerboard are a saddle; a Gaussian-weighted least
+    squares quadratic ``a x^2 + b xy + c y^2 + d x + e y + f`` over a ``(2 half + 1)^2`` window gives its stationary
+    point (the saddle-point method of Lucchese & Mitra, 2002, "Using saddle points for subpixel feature detection
+    in camera calibration targets"). Linear per corner, hence fast; the window is re-centred (bilinearly) on each
+    estimate until the step is below 1e-4 px or ``iterations`` are done.
+
+    Parameters
+    ----------
+    image : (H, W) grey image (any dtype; used as float)
+    corners : (N, 2) initial corners, px (within ~half_px of the truth)
+    half_px : half-width of the window, px
+    sigma_px : Gaussian smoothing of the image before the fit, px
+
+    Returns
+    -------
+    (N, 2) refined corners; a corner whose fit is not a saddle keeps its last saddle estimate (its input position
+    if none), one near the image edge or ending ``half_px`` or more from its start keeps its input position.
+    """
+    img = np.asarray(image, dtype=np.float32)
+    if img.ndim == 3:
+        img = img.mean(axis=2)
+    H, W = img.shape
+    smooth = cv2.GaussianBlur(img, (0, 0), sigma_px)
+    yy, xx = np.mgrid[-half_px:half_px + 1, -half_px:half_px + 1].astype(float)
+    x, y = xx.ravel(), yy.ravel()
+    w = np.exp(-(x * x + y * y) / (2.0 * (half_px / 1.5) ** 2))
+    A = np.column_stack([x * x, x * y, y * y, x, y, np.ones_like(x)]) * w[:, None]
+    pinv = np.linalg.pinv(A)                                      # one window shape: one pseudo-inverse
+    corners = np.asarray(corners, float)
+    out = corners.copy()
+    size = (2 * half_px + 1, 2 * half_px + 1)
+    for i in range(len(out)):
+        u, v = out[i]
+        for _ in range(iterations):
+            if not (half_px + 1 <= u < W - half_px - 2 and half_px + 1 <= v < H - half_px - 2):
+                break
+            # the window centred on the current estimate (bilinear): the fit is point-symmetric about a true corner,
+            # so the estimate is the saddle's fixed point, not biased by an integer-centred window
+            patch = cv2.getRectSubPix(smooth, size, (float(u), float(v))).ravel().astype(float)
+            c = pinv @ (patch * w)
+            M = np.array([[2.0 * c[0], c[1]], [c[1], 2.0 * c[2]]])
+            if np.linalg.det(M) >= 0:                             # not a saddle
+                break
+            step = np.linalg.solve(M, -c[3:5])
+            if np.hypot(step[0], step[1]) >= half_px:
+                break
+            u, v = u + step[0], v + step[1]
+            if np.hypot(step[0], step[1]) < 1e-4:
+                break
+        if np.isfinite(u) and np.hypot(u - corners[i][0], v - corners[i][1]) < half_px:
+            out[i] = u, v
+    return out
+
+
+def _full_size_corners(image: np.ndarray, corners_small: np.ndarray, scale: float,
+                       pattern_size: tuple[int, int]) -> np.ndarray:
+    """Corners found on a copy shrunk by ``scale`` (< 1), refined on the full-size image by :func:`saddle_points`
+    with a window of ~6 % of the corner spacing (4-12 px half-width). On six rendered 2448 x 2048 boards this gives
+    0.015-0.023 px RMS against the truth, against 0.025-0.062 px for OpenCV's full-size search and 0.05-0.07 px for
+    ``cv2.cornerSubPix`` from the same start."""
+    full = (corners_small + 0.5) / scale - 0.5                      # pixel centres: u' + 0.5 = scale (u + 0.5)
+    nx, ny = pattern_size
+    grid = full.reshape(ny, nx, 2)
+    spacing = min(np.median(np.linalg.norm(np.diff(grid, axis=1), axis=-1)),
+                  np.median(np.linalg.norm(np.diff(grid, axis=0), axis=-1)))
+    half = int(np.clip(round(0.06 * spacing), 4, 12))
+    return saddle_points(image, full, half, sigma_px=half / 3.0)
+
+
+def detect_checkerboard(image: np.ndarray, pattern_size: tuple[int, int] = (11, 8), *,
+                        max_side_px: int | None = DETECT_MAX_SIDE_PX) -> np.ndarray | None:
     """Sub-pixel inner corners of a checkerboard, in the canonical order; ``None`` if not found.
 
     Parameters
@@ -57,6 +137,10 @@ def detect_checkerboard(image: np.ndarray, pattern_size: tuple[int, int] = (11, 
         or floats in [0, 1] with the same 256 levels over their range. Its sub-pixel step (CALIB_CB_ACCURACY)
         works on that copy; :func:`refine_corners_saddle` refines on the full-precision image.
     pattern_size : (columns, rows) of inner corners, OpenCV's ``patternSize`` (11 x 8 for 12 x 9 squares)
+    max_side_px : an image whose long side is larger is searched on a copy shrunk to this size (``cv2.INTER_AREA``)
+        and its corners refined on the full-size image (full precision) by :func:`saddle_points`; ``None``: always
+        at full size.
+        On rendered 2448 x 2048 boards both agree with the truth alike (tests/test_detection_downscaled.py).
 
     Returns
     -------
@@ -65,6 +149,15 @@ def detect_checkerboard(image: np.ndarray, pattern_size: tuple[int, int] = (11, 
     """
     nx, ny = pattern_size
     gray = _to_gray8(image)
+    if max_side_px is not None and max(gray.shape) > max_side_px:
+        scale = max_side_px / max(gray.shape)
+        small = cv2.resize(gray, (max(1, round(gray.shape[1] * scale)), max(1, round(gray.shape[0] * scale))),
+                           interpolation=cv2.INTER_AREA)
+        found = detect_checkerboard(small, pattern_size, max_side_px=None)
+        if found is None:
+            return None
+        # the order was decided on the copy; cornerSubPix keeps it
+        return _full_size_corners(image, found, small.shape[1] / gray.shape[1], pattern_size)
     # CALIB_CB_NORMALIZE_IMAGE (histogram equalisation) costs accuracy: 0.22 px instead of 0.035 px mean on
     # rendered boards with 1 grey level of noise; use it only in the exhaustive second try.
     found, corners = cv2.findChessboardCornersSB(gray, (nx, ny), flags=cv2.CALIB_CB_ACCURACY)

@@ -76,10 +76,54 @@ def detect_pairs(left_files, right_files, pattern_size=(11, 8), progress: bool =
 
 def calibrate_from_files(left_files, right_files, *, square_mm: float, pattern_size=(11, 8), model: str = "rmm",
                          tilt_guess_left_deg=(0.0, 0.0), tilt_guess_right_deg=(0.0, 0.0), joint: bool = True,
-                         progress: bool = True, refine_corners: bool = False) -> tuple[StereoCalibration, DetectedPairs]:
-    """Detect the board in every pair and run the stepwise stereo calibration."""
+                         progress: bool = True, refine_corners: bool = False,
+                         lens: str = "brown4") -> tuple[StereoCalibration, DetectedPairs]:
+    """Detect the board in every pair and run the stepwise stereo calibration (``lens``: see
+    :data:`~measurement.calibration.stepwise.LENSES`)."""
     pairs = detect_pairs(left_files, right_files, pattern_size, progress, refine=refine_corners)
     cal = calibrate_stereo(pairs.points_left, pairs.points_right, board_points_mm(pattern_size, square_mm),
                            pairs.image_size, model=model, tilt_guess_left_deg=tilt_guess_left_deg,
-                           tilt_guess_right_deg=tilt_guess_right_deg, joint=joint)
+                           tilt_guess_right_deg=tilt_guess_right_deg, joint=joint, lens=lens)
     return cal, pairs
+
+
+@dataclass
+class DetectedViews:
+    """Corners found in the images of one camera."""
+
+    files: list[str]
+    points: np.ndarray          # (V, N, 2)
+    image_size: tuple[int, int]
+    dropped: list[str]          # files whose board was not found
+
+
+def detect_views(files, pattern_size=(11, 8), progress: bool = True, refine: bool = False,
+                 min_views: int = MIN_VIEWS) -> DetectedViews:
+    """Detect the board in every image of one camera (single-camera calibration); ``refine`` as in
+    :func:`detect_pairs`. Images whose board is not found are dropped with a warning."""
+    files = [str(f) for f in files]
+    if not files:
+        raise CalibrationError("no images given (check the --camera pattern)")
+    size = None
+    points, used, dropped = [], [], []
+    for f in tqdm(files, desc="detecting boards", disable=not progress):
+        img = read_grey(f)
+        if size is None:
+            size = (img.shape[1], img.shape[0], f)
+        elif (img.shape[1], img.shape[0]) != size[:2]:
+            raise CalibrationError(f"image {f} is {img.shape[1]} x {img.shape[0]} px but {size[2]} is "
+                                   f"{size[0]} x {size[1]} px: all images must have one size")
+        corners = detect_checkerboard(img, pattern_size)
+        if corners is not None and refine:
+            corners = refine_corners_saddle(img, corners, pattern_size)
+        if corners is None:
+            warnings.warn(f"board not found in {f}: dropping it", stacklevel=2)
+            dropped.append(f)
+            continue
+        points.append(corners)
+        used.append(f)
+    if len(points) < min_views:
+        raise CalibrationError(f"only {len(points)} of {len(files)} images show the {pattern_size[0]} x "
+                               f"{pattern_size[1]}-corner board; at least {min_views} are needed (check --pattern "
+                               "and the images)")
+    return DetectedViews(used, np.array(points), size[:2], dropped)

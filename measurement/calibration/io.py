@@ -11,14 +11,15 @@ never filled with 0 or a default), types (a string where a number belongs is ref
 R a proper rotation within 1e-6, ``0 < |T| < 1e6`` mm). Every defect raises
 :class:`~measurement.schema.FileFormatError` (a ``ValueError``) naming the file and the key.
 
-Cameras may carry two terms beyond Table 1 (:data:`EXTRA_RANGES`): the radial r^6 coefficient ``k3`` and the skew
-``K[0, 1]`` (px). They are written only when non-zero (so files and hashes of calibrations without them are unchanged):
-in the JSON as ``<side>.extra_intrinsics = {"k3": ..., "skew": ...}``, in the YAML as ``<side>_k3``/``<side>_skew``
-(and in K/D). Loading accepts them as optional keys, range-checked like the rest.
+Cameras may carry terms beyond Table 1 (:data:`EXTRA_RANGES`): the radial r^6 coefficient ``k3``, the skew
+``K[0, 1]`` (px) and OpenCV's thin prism ``s1``-``s4``. They are written only when non-zero (so files and hashes of
+calibrations without them are unchanged): in the JSON as ``<side>.extra_intrinsics = {"k3": ..., "skew": ...}``, in
+the YAML as ``<side>_k3``/``<side>_skew``/``<side>_s1``... (and in K/D). Loading accepts them as optional keys,
+range-checked like the rest.
 
-A calibration fitted with the five-term lens (``lens="brown5"``, :data:`~measurement.calibration.stepwise.LENSES`)
-says so in the JSON (``"lens": "brown5"``; absent means ``brown4``, so files of the four-term fit are unchanged) and
-stores the sigma of its k3 beside the others (``<side>.sigma.k3``).
+A calibration fitted with more than the paper's four lens terms (:data:`~measurement.calibration.stepwise.LENSES`)
+says so in the JSON (``"lens": "brown5"`` or ``"full"``; absent means ``brown4``, so files of the four-term fit are
+unchanged) and stores the sigmas of its extra terms beside the others (``<side>.sigma.k3``, ``.s1``...).
 """
 from __future__ import annotations
 
@@ -29,14 +30,15 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from measurement.calibration.stepwise import _TILT_MODEL, LENSES, MODELS, StereoCalibration
-from measurement.camera import INTRINSIC_NAMES, MAX_TILT_DEG, TILT_MODELS, ScheimpflugCamera
+from measurement.calibration.stepwise import _TILT_MODEL, LENSES, MODELS, CameraCalibration, StereoCalibration
+from measurement.camera import EXTRA_NAMES, INTRINSIC_NAMES, MAX_TILT_DEG, TILT_MODELS, ScheimpflugCamera
 from measurement.files import atomic_write_text
 from measurement.schema import FileFormatError, Node, read_json_file, read_text_file
 
 __all__ = ["FORMAT", "CONVENTION", "RANGES", "CalibratedRig", "FileFormatError", "calibration_to_dict",
            "save_calibration", "load_calibration", "export_opencv_yaml", "load_opencv_yaml", "rig_to_dict", "save_rig",
-           "opencv_distortion_cost_px", "EXTRA_RANGES", "EXTRA_CONVENTION"]
+           "opencv_distortion_cost_px", "EXTRA_RANGES", "EXTRA_CONVENTION", "CAMERA_FORMAT",
+           "camera_calibration_to_dict", "save_camera_calibration", "load_camera_calibration"]
 
 FORMAT = "scheimpflug-stereo-calibration/1"
 CONVENTION = ("Camera frame as OpenCV (x right, y down, z forward), pixel centres at integer coordinates. "
@@ -52,10 +54,12 @@ RANGES = {"fx": (0.0, 1e6), "fy": (0.0, 1e6), "cx": (-1e6, 1e6), "cy": (-1e6, 1e
           "k1": (-1e3, 1e3), "k2": (-1e3, 1e3), "p1": (-1e3, 1e3), "p2": (-1e3, 1e3)}
 #: Accepted range of the optional terms beyond Table 1: k3 multiplies r^6, so on the narrow fields of DIC lenses
 #: (corners at r ~ 0.1-0.2) calibrations report |k3| of tens (the DIC Challenge cameras: ~30), hence a wider bound.
-EXTRA_RANGES = {"k3": (-1e4, 1e4), "skew": (-1e4, 1e4)}
+EXTRA_RANGES = {"k3": (-1e4, 1e4), "skew": (-1e4, 1e4),
+                "s1": (-1e3, 1e3), "s2": (-1e3, 1e3), "s3": (-1e3, 1e3), "s4": (-1e3, 1e3)}
 #: What the optional terms mean, written beside them.
 EXTRA_CONVENTION = ("k3: radial r^6 term, x_d = x_n (1 + k1 r^2 + k2 r^4 + k3 r^6) + tangential terms; skew (px): "
-                    "u = fx x_t + skew y_t + cx (K[0][1]). Absent means 0.")
+                    "u = fx x_t + skew y_t + cx (K[0][1]); s1-s4: OpenCV's thin prism, x_d += s1 r^2 + s2 r^4, "
+                    "y_d += s3 r^2 + s4 r^4. Absent means 0.")
 _UNITS = {"fx": "px", "fy": "px", "cx": "px", "cy": "px", "alpha_deg": "deg", "beta_deg": "deg", "skew": "px"}
 #: Image width and height: integers in [1, MAX_IMAGE_PX].
 MAX_IMAGE_PX = 1_000_000
@@ -89,7 +93,7 @@ def _with_extra_convention(d: dict, cams) -> dict:
 def _camera_entry(cam_cal) -> dict:
     cam = cam_cal.camera
     return {"intrinsics": cam.intrinsics(), **_extra_terms(cam),
-            "sigma": {n: cam_cal.sigma[n] for n in INTRINSIC_NAMES + ("k3",) if n in cam_cal.sigma},
+            "sigma": {n: cam_cal.sigma[n] for n in INTRINSIC_NAMES + EXTRA_NAMES if n in cam_cal.sigma},
             "tilt_model": cam.tilt_model, "width": cam.width, "height": cam.height,
             "reprojection_rms_px": cam_cal.rms_px, "per_view_rms_px": np.asarray(cam_cal.per_view_rms_px).tolist(),
             "steps": [{"step": s[0], "free": list(s[1]), "rms_px": s[2]} for s in cam_cal.steps]}
@@ -208,7 +212,8 @@ def _json_camera(entry: Node, model: str) -> ScheimpflugCamera:
 
 
 def _optional_extras(doc: Node, prefix: str) -> dict[str, float]:
-    """The optional ``<prefix>k3`` / ``<prefix>skew`` scalars of a YAML (absent = 0, not returned)."""
+    """The optional ``<prefix>k3`` / ``<prefix>skew`` / ``<prefix>s1``... scalars of a YAML (absent = 0, not
+    returned)."""
     return {n: _intrinsic(doc[f"{prefix}{n}"], n) for n in EXTRA_RANGES if doc.get(f"{prefix}{n}") is not None}
 
 
@@ -313,6 +318,7 @@ def _opencv_distortion(cam: ScheimpflugCamera) -> np.ndarray:
     """OpenCV's 14 coefficients (k1, k2, p1, p2, k3, k4, k5, k6, s1..s4, tau_x, tau_y) of ``cam``, (1, 14)."""
     dist = np.zeros((1, 14))
     dist[0, :5] = cam.k1, cam.k2, cam.p1, cam.p2, cam.k3
+    dist[0, 8:12] = cam.s1, cam.s2, cam.s3, cam.s4
     dist[0, 12:] = cam.alpha_rad, cam.beta_rad
     return dist
 
@@ -431,15 +437,15 @@ def _plain_size(doc: Node) -> tuple[int, int]:
     raise doc.error("has no image size: add image_width and image_height (px), or imageSize: [width, height]")
 
 
-#: The OpenCV distortion terms this instrument's lens model holds, by position: k1 k2 p1 p2 k3, and tau_x tau_y
-#: (positions 12, 13: CALIB_TILTED_MODEL, this instrument's "opencv" tilt model).
-_PLAIN_KEPT = (0, 1, 2, 3, 4, 12, 13)
+#: The OpenCV distortion terms this instrument's lens model holds, by position: k1 k2 p1 p2 k3, s1-s4 (8-11) and
+#: tau_x tau_y (positions 12, 13: CALIB_TILTED_MODEL, this instrument's "opencv" tilt model).
+_PLAIN_KEPT = (0, 1, 2, 3, 4, 8, 9, 10, 11, 12, 13)
 
 
 def _plain_distortion(node: Node, K: np.ndarray, size: tuple[int, int]) -> np.ndarray:
     """The 14 OpenCV coefficients of a distortion vector of 4, 5, 8, 12 or 14 values (zero-padded), shape (14,).
 
-    The model holds k1 k2 p1 p2 k3 and tau_x tau_y; a non-zero rational (k4-k6) or thin-prism (s1-s4) term is
+    The model holds k1 k2 p1 p2 k3, the thin prism s1-s4 and tau_x tau_y; a non-zero rational term (k4-k6) is
     refused with the pixels dropping it would move the image corners by."""
     value = node.value
     if isinstance(value, dict):
@@ -467,7 +473,8 @@ def _plain_distortion(node: Node, K: np.ndarray, size: tuple[int, int]) -> np.nd
         short = cv2.projectPoints(rays, np.zeros(3), np.zeros(3), K, kept)[0].reshape(-1, 2)
         cost = float(np.max(np.linalg.norm(full - short, axis=1)))
         terms = ", ".join(f"{k} = {v:g}" for k, v in extra.items())
-        raise node.error(f"has {terms}: this instrument's lens model has k1, k2, p1, p2, k3 (and tau_x, tau_y) only; "
+        raise node.error(f"has {terms}: this instrument's lens model has k1, k2, p1, p2, k3, s1-s4 (and tau_x, tau_y) "
+                         "only; "
                          f"dropping the rest would move the image corners by up to {cost:.3g} px, so the file is "
                          f"refused")
     return full14
@@ -488,11 +495,12 @@ def _rig_from_plain_opencv(doc: Node, path) -> CalibratedRig:
         d = _plain_distortion(d_node, K, size)
         values = {"fx": K[0, 0], "fy": K[1, 1], "cx": K[0, 2], "cy": K[1, 2],
                   "alpha_deg": float(np.rad2deg(d[12])), "beta_deg": float(np.rad2deg(d[13])),
-                  "k1": d[0], "k2": d[1], "p1": d[2], "p2": d[3], "k3": d[4], "skew": K[0, 1]}
+                  "k1": d[0], "k2": d[1], "p1": d[2], "p2": d[3], "k3": d[4], "skew": K[0, 1],
+                  "s1": d[8], "s2": d[9], "s3": d[10], "s4": d[11]}
         for key, v in values.items():
             lo, hi = RANGES[key] if key in RANGES else EXTRA_RANGES[key]
             if not (lo < v < hi) or (key in ("fx", "fy") and not v > 0):
-                node = d_node if key in ("alpha_deg", "beta_deg", "k1", "k2", "p1", "p2", "k3") else k_node
+                node = k_node if key in ("fx", "fy", "cx", "cy", "skew") else d_node
                 raise node.error(f"gives {key} = {v:g}, outside ({lo:g}, {hi:g})")
         found[name] = {k: float(v) for k, v in values.items()}
     # one model for the rig: OpenCV's tilted model if either camera has a tilt (tau = 0 is the pinhole then)
@@ -559,3 +567,122 @@ def load_opencv_yaml(path: str | Path) -> CalibratedRig:
     and the key.
     """
     return _rig_from_yaml_text(read_text_file(path, "calibration file", max_bytes=MAX_YAML_BYTES), path)
+
+
+# --- single-camera calibrations ------------------------------------------------------------------------------
+#: Format tag of a single-camera calibration JSON (``workbench calibrate --camera``).
+CAMERA_FORMAT = "scheimpflug-camera-calibration/1"
+
+
+def camera_calibration_to_dict(cal: CameraCalibration, model: str, extra: dict | None = None) -> dict:
+    """One camera's calibration (intrinsics, sigmas, residuals, steps, board poses) as plain JSON types."""
+    if model not in MODELS:
+        raise ValueError(f"unknown camera model {model!r}; choose one of {', '.join(MODELS)}")
+    d = {"format": CAMERA_FORMAT, "convention": CONVENTION, "model": model,
+         **({"lens": cal.lens} if cal.lens != "brown4" else {}),
+         "image_size_px": [cal.camera.width, cal.camera.height],
+         "camera": _camera_entry(cal),
+         "board_poses": {"rvec": np.asarray(cal.rvecs).tolist(), "t_mm": np.asarray(cal.tvecs_mm).tolist(),
+                         "convention": "X_cam = R(rvec) X_board + t_mm"}}
+    _with_extra_convention(d, (cal.camera,))
+    if extra:
+        d.update(extra)
+    return d
+
+
+def _camera_from_json(doc: Node) -> ScheimpflugCamera:
+    doc.mapping()
+    fmt = doc["format"].string(nonempty=False)
+    if fmt != CAMERA_FORMAT:
+        hint = " (a stereo calibration: load it with load_calibration)" if fmt == FORMAT else ""
+        raise doc["format"].error(f"unknown format {fmt!r}, expected {CAMERA_FORMAT!r}{hint}")
+    model = _model(doc["model"])
+    if doc.get("lens") is not None:
+        doc["lens"].string(LENSES)
+    return _json_camera(doc["camera"], model)
+
+
+def opencv_camera_yaml_text(cal: CameraCalibration | ScheimpflugCamera, path: str | Path) -> str:
+    """OpenCV's single-camera calibration file (the keys of OpenCV's ``calibration`` sample: ``camera_matrix``,
+    ``distortion_coefficients`` (14 terms), ``image_width``, ``image_height``, ``avg_reprojection_error``), YAML or
+    XML by the suffix of ``path``, plus the named parameters (``fx``, ...) that hold the exact model."""
+    cam = cal.camera if isinstance(cal, CameraCalibration) else cal
+    fmt = _storage_format(path)
+    fs = cv2.FileStorage(".xml" if fmt == cv2.FILE_STORAGE_FORMAT_XML else ".yaml",
+                         cv2.FILE_STORAGE_WRITE | cv2.FILE_STORAGE_MEMORY | fmt)
+    fs.write("format", CAMERA_FORMAT)
+    fs.write("image_width", int(cam.width))
+    fs.write("image_height", int(cam.height))
+    fs.write("camera_matrix", cam.K)
+    fs.write("distortion_coefficients", _opencv_distortion(cam))
+    if isinstance(cal, CameraCalibration):
+        fs.write("avg_reprojection_error", float(cal.rms_px))
+    fs.write("tilt_model", cam.tilt_model)
+    for n in INTRINSIC_NAMES:
+        fs.write(n, float(getattr(cam, n)))
+    for n, v in _extra_terms(cam).get("extra_intrinsics", {}).items():
+        fs.write(n, v)
+    return fs.releaseAndGetString()
+
+
+def save_camera_calibration(cal: CameraCalibration, path: str | Path, *, model: str,
+                            extra: dict | None = None) -> None:
+    """Write a single-camera calibration: JSON (``.json``) or OpenCV YAML/XML by suffix; atomically, after checking
+    that the text loads back."""
+    path = Path(path)
+    if path.suffix.lower() in OPENCV_SUFFIXES:
+        text = opencv_camera_yaml_text(cal, path)
+        _refuse_unloadable(lambda: _camera_from_opencv_text(text, path))
+    else:
+        text = json.dumps(camera_calibration_to_dict(cal, model, extra), indent=1)
+        _refuse_unloadable(lambda: _camera_from_json(Node(json.loads(text), path)))
+    atomic_write_text(path, text)
+
+
+def _one_of(doc: Node, names, what: str) -> Node:
+    for name in names:
+        if doc.get(name) is not None:
+            return doc[name]
+    raise doc.error(f"has no {what} (looked for {', '.join(names)})")
+
+
+def _camera_from_opencv_text(text: str, path) -> ScheimpflugCamera:
+    """A camera from OpenCV's calibration-sample keys; the named parameters (this instrument's export) win."""
+    doc = _read_opencv_yaml(text, path)
+    doc.mapping()
+    size = _plain_size(doc)
+    if doc.get("fx") is not None and doc.get("tilt_model") is not None:
+        values = {n: _intrinsic(doc[n], n) for n in INTRINSIC_NAMES}
+        values.update(_optional_extras(doc, ""))
+        tilt_model = doc["tilt_model"].string(TILT_MODELS)
+        model = "pinhole" if values["alpha_deg"] == values["beta_deg"] == 0.0 else \
+            ("opencv-tilt" if tilt_model == "opencv" else "rmm")
+        return _camera(values, size[0], size[1], tilt_model, model, doc, lambda n: n)
+    k_node = _one_of(doc, ("camera_matrix", "cameraMatrix", "K"), "camera matrix")
+    K = _opencv_matrix(k_node, (3, 3))
+    if not (np.allclose(K[1, 0], 0) and np.allclose(K[2], [0, 0, 1])):
+        raise k_node.error(f"is not a camera matrix [[fx, s, cx], [0, fy, cy], [0, 0, 1]]: {K.tolist()}")
+    d_node = _one_of(doc, ("distortion_coefficients", "distCoeffs", "D"), "distortion vector")
+    d = _plain_distortion(d_node, K, size)
+    values = {"fx": K[0, 0], "fy": K[1, 1], "cx": K[0, 2], "cy": K[1, 2],
+              "alpha_deg": float(np.rad2deg(d[12])), "beta_deg": float(np.rad2deg(d[13])),
+              "k1": d[0], "k2": d[1], "p1": d[2], "p2": d[3], "k3": d[4], "skew": K[0, 1],
+              "s1": d[8], "s2": d[9], "s3": d[10], "s4": d[11]}
+    for key, v in values.items():
+        lo, hi = RANGES[key] if key in RANGES else EXTRA_RANGES[key]
+        if not (lo < v < hi):
+            raise (k_node if key in ("fx", "fy", "cx", "cy", "skew") else d_node).error(
+                f"gives {key} = {v:g}, outside ({lo:g}, {hi:g})")
+    tilted = values["alpha_deg"] != 0.0 or values["beta_deg"] != 0.0
+    return ScheimpflugCamera(**{k: float(v) for k, v in values.items()}, width=size[0], height=size[1],
+                             tilt_model="opencv" if tilted else "rmm")
+
+
+def load_camera_calibration(path: str | Path) -> ScheimpflugCamera:
+    """Read one camera: this instrument's camera JSON (``workbench calibrate --camera``), or an OpenCV YAML/XML
+    with ``camera_matrix``, ``distortion_coefficients`` (4-14 terms), ``image_width``, ``image_height`` (OpenCV's
+    calibration sample). Raises FileFormatError naming the file and the key."""
+    path = Path(path)
+    if path.suffix.lower() in OPENCV_SUFFIXES:
+        return _camera_from_opencv_text(read_text_file(path, "camera calibration file"), path)
+    return _camera_from_json(read_json_file(path, "camera calibration file"))

@@ -30,8 +30,10 @@ solution, from the full (dense, n_shared + 6 V square) normal matrix.
 Models: ``rmm`` (the paper), ``opencv-tilt`` (OpenCV's tau_x, tau_y order of rotations), ``pinhole``
 (conventional: no tilt, alpha = beta = 0 fixed).
 
-Lenses (:data:`LENSES`): ``brown4`` (the paper: k1 k2 p1 p2; k3 held at 0) or ``brown5`` (k1 k2 k3 p1 p2, OpenCV's
-five terms: k3, the r^6 radial term, is freed wherever k1 and k2 are, starting from 0). Whether k3 is worth it on a
+Lenses (:data:`LENSES`, with the names of :data:`LENS_ALIASES`): ``brown4`` = ``k1k2p1p2`` (the paper; k3 held at
+0), ``brown5`` = ``k1k2k3p1p2`` (OpenCV's five terms: k3, the r^6 radial term, is freed wherever k1 and k2 are,
+starting from 0) or ``full`` (also OpenCV's thin prism s1-s4, freed wherever p1 and p2 are, and the skew K[0, 1],
+freed in the final and joint refinements). Whether k3 is worth it on a
 data set: :func:`compare_lens_models` (both fits on the same corners, the k3 estimate against its sigma, the RMS
 each leaves). On narrow DIC fields (corners at r ~ 0.1-0.2) r^6 is nearly a combination of r^2 and r^4, so k1 and
 k2 absorb most of a true k3 and its sigma is large: a k3 term that alone moves the image corners by pixels may
@@ -54,8 +56,13 @@ MODELS = ("rmm", "opencv-tilt", "pinhole")
 _TILT_MODEL = {"rmm": "rmm", "opencv-tilt": "opencv", "pinhole": "rmm"}
 #: Least-squares solvers (module docstring): structured LM with Schur complement, or scipy's MINPACK LM.
 SOLVERS = ("schur-lm", "minpack-lm")
-#: Lens distortion models: the paper's four Brown terms, or five with the r^6 radial term k3 (module docstring).
-LENSES = ("brown4", "brown5")
+#: Lens distortion models: the paper's four Brown terms, five with the r^6 radial term k3, or all of this camera
+#: model's optional terms (k3, thin prism s1-s4, skew); see the module docstring.
+LENSES = ("brown4", "brown5", "full")
+#: Other names of the lens models (the terms spelled out, as ``--lens`` takes them).
+LENS_ALIASES = {"k1k2p1p2": "brown4", "k1k2k3p1p2": "brown5"}
+#: The optional terms each lens model estimates beyond the paper's k1 k2 p1 p2.
+LENS_TERMS = {"brown4": (), "brown5": ("k3",), "full": ("k3", "s1", "s2", "s3", "s4", "skew")}
 
 #: Steps 2-4 of §2.2: the intrinsics each one frees (the poses are always free).
 STEPS = (("step 2", ("fx", "fy", "alpha_deg", "beta_deg")),
@@ -67,17 +74,37 @@ class CalibrationError(ValueError):
     """The data cannot support a calibration (too few views, degenerate poses...)."""
 
 
-def _check_lens(lens: str) -> None:
-    if lens not in LENSES:
-        raise CalibrationError(f"unknown lens model {lens!r}; choose one of {', '.join(LENSES)}")
+def canonical_lens(lens: str) -> str:
+    """The :data:`LENSES` name of ``lens`` (an alias of :data:`LENS_ALIASES` or a canonical name)."""
+    name = LENS_ALIASES.get(lens, lens)
+    if name not in LENSES:
+        raise CalibrationError(f"unknown lens model {lens!r}; choose one of "
+                               f"{', '.join(list(LENSES) + list(LENS_ALIASES))}")
+    return name
 
 
-def _with_k3(free: tuple[str, ...], lens: str) -> tuple[str, ...]:
-    """``free`` with k3 after k2 for ``brown5`` where k1 and k2 are free (unchanged for ``brown4``)."""
-    if lens != "brown5" or not ("k1" in free and "k2" in free):
-        return tuple(free)
-    i = free.index("k2") + 1
-    return tuple(free[:i]) + ("k3",) + tuple(free[i:])
+def _check_lens(lens: str) -> str:
+    return canonical_lens(lens)
+
+
+def _with_k3(free: tuple[str, ...], lens: str, final: bool = False) -> tuple[str, ...]:
+    """``free`` with the lens model's optional terms: k3 after k2 where k1 and k2 are free (``brown5``, ``full``),
+    s1-s4 after p2 where p1 and p2 are free (``full``), the skew after fy in a ``final`` refinement (``full``)."""
+    lens = canonical_lens(lens)
+    free = tuple(free)
+    if lens == "brown4":
+        return free
+    if "k1" in free and "k2" in free:
+        i = free.index("k2") + 1
+        free = free[:i] + ("k3",) + free[i:]
+    if lens == "full":
+        if "p1" in free and "p2" in free:
+            i = free.index("p2") + 1
+            free = free[:i] + ("s1", "s2", "s3", "s4") + free[i:]
+        if final and "fy" in free:
+            i = free.index("fy") + 1
+            free = free[:i] + ("skew",) + free[i:]
+    return free
 
 
 @dataclass
@@ -134,10 +161,12 @@ def _with(camera: ScheimpflugCamera, names, values) -> ScheimpflugCamera:
     return replace(camera, **{n: float(v) for n, v in zip(names, values)})
 
 
-def _uncertainty(normal: np.ndarray, residuals: np.ndarray) -> np.ndarray:
-    """Standard uncertainties ``sqrt(diag(s^2 (J^T J)^-1))`` from the normal matrix ``J^T J`` (n, n) -> (n,)."""
+def _uncertainty(normal: np.ndarray, residuals: np.ndarray, n_residuals: int | None = None) -> np.ndarray:
+    """Standard uncertainties ``sqrt(diag(s^2 (J^T J)^-1))`` from the normal matrix ``J^T J`` (n, n) -> (n,).
+
+    ``n_residuals``: how many of ``residuals`` are observations (missing points' zeros are not); default all."""
     n = len(normal)
-    dof = max(1, len(residuals) - n)
+    dof = max(1, (len(residuals) if n_residuals is None else n_residuals) - n)
     s2 = float(residuals @ residuals) / dof
     try:
         cov = s2 * np.linalg.inv(normal)
@@ -147,29 +176,61 @@ def _uncertainty(normal: np.ndarray, residuals: np.ndarray) -> np.ndarray:
 
 
 def _rms(residual_uv: np.ndarray) -> float:
-    """RMS reprojection error of (..., 2) residuals: sqrt(mean(du^2 + dv^2))."""
-    return float(np.sqrt(np.mean(np.sum(residual_uv ** 2, axis=-1))))
+    """RMS reprojection error of (..., 2) residuals: sqrt(mean(du^2 + dv^2)) over the points not missing (NaN)."""
+    sq = np.sum(np.asarray(residual_uv) ** 2, axis=-1)
+    return float(np.sqrt(np.nanmean(sq))) if np.any(np.isfinite(sq)) else float("nan")
 
 
-def _check_views(image_points: np.ndarray, board_mm: np.ndarray, minimum: int, what: str) -> None:
+def _per_view_rms(residual_uv: np.ndarray, found: np.ndarray) -> np.ndarray:
+    """(V,) RMS of each view's found points: residuals (V, N, 2), found (V, N) bool."""
+    sq = np.where(found, np.sum(residual_uv ** 2, axis=-1), 0.0)
+    return np.sqrt(sq.sum(axis=1) / np.maximum(found.sum(axis=1), 1))
+
+
+#: Fewest points found per view (a homography needs 4; fewer than 6 leave its pose nearly undetermined).
+MIN_POINTS_PER_VIEW = 6
+
+
+def _check_views(image_points: np.ndarray, board_mm: np.ndarray, minimum: int, what: str) -> np.ndarray:
+    """Check the (V, N, 2) points; returns (V, N) bool: found (finite). A missing point (a ChArUco corner not seen,
+    a corner off the image) is a NaN row; a view needs :data:`MIN_POINTS_PER_VIEW` found points."""
     if image_points.ndim != 3 or image_points.shape[2] != 2 or image_points.shape[1] != len(board_mm):
         raise CalibrationError(f"{what}: expected image points of shape (views, {len(board_mm)}, 2), "
                                f"got {image_points.shape}")
     if len(image_points) < minimum:
         raise CalibrationError(f"{what}: {len(image_points)} usable views, the model needs at least {minimum}")
-    if not np.all(np.isfinite(image_points)):
-        raise CalibrationError(f"{what}: image points contain NaN or inf")
+    if np.any(np.isinf(image_points)):
+        raise CalibrationError(f"{what}: image points contain inf")
+    found = np.all(np.isfinite(image_points), axis=-1)
+    if np.any(np.isnan(image_points).any(axis=-1) & found):        # pragma: no cover - all() above
+        raise CalibrationError(f"{what}: a point has one NaN coordinate")
+    if np.any(np.isnan(image_points[..., 0]) != np.isnan(image_points[..., 1])):
+        raise CalibrationError(f"{what}: a point has one NaN coordinate and one number (a missing point is NaN, NaN)")
+    few = np.flatnonzero(found.sum(axis=1) < MIN_POINTS_PER_VIEW)
+    if len(few):
+        raise CalibrationError(f"{what}: view(s) {', '.join(str(v) for v in few[:10])} have fewer than "
+                               f"{MIN_POINTS_PER_VIEW} points found; drop them")
+    return found
 
 
 # ------------------------------------------------------------------------------------------------------------
+def _masked(image_points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(points with missing ones at 0, (V, N, 1) float mask 1 = found): a missing point's residual is held at 0."""
+    found = np.all(np.isfinite(image_points), axis=-1, keepdims=True)
+    return np.where(found, image_points, 0.0), found.astype(float)
+
+
 def _mono_residual_fn(camera, free, board_mm, image_points):
-    """Residual of one camera; x = [free intrinsics..., (rvec, t) of each view]."""
+    """Residual of one camera; x = [free intrinsics..., (rvec, t) of each view]. Missing (NaN) points give 0."""
     V, k = len(image_points), len(free)
+    pts, mask = _masked(image_points)
+    every = bool(mask.all())
 
     def residual(x):
         cam = _with(camera, free, x[:k])
         poses = x[k:].reshape(V, 6)
-        return (project_views(cam, poses[:, :3], poses[:, 3:], board_mm) - image_points).ravel()
+        r = project_views(cam, poses[:, :3], poses[:, 3:], board_mm) - pts
+        return (r if every else r * mask).ravel()
 
     return residual
 
@@ -205,19 +266,22 @@ def calibrate_camera(image_points: np.ndarray, board_mm: np.ndarray, image_size:
         distortion that leaves ~0.3 px RMS on exact data, and ``sigma`` would not describe a least-squares
         solution. ``False`` gives the paper's steps 1-4 alone.
     solver : ``schur-lm`` (default) or ``minpack-lm``, see the module docstring (same minimum)
-    lens : ``brown4`` (default: k1 k2 p1 p2) or ``brown5`` (also k3, freed with k1 and k2, from 0)
+    lens : ``brown4`` (default: k1 k2 p1 p2), ``brown5`` (also k3, freed with k1 and k2, from 0) or ``full`` (also
+        the thin prism s1-s4 and the skew); the aliases of :data:`LENS_ALIASES` too
+    image_points may hold missing points as NaN rows (partly seen ChArUco boards); each view needs
+    :data:`MIN_POINTS_PER_VIEW` found ones.
     """
-    _check_lens(lens)
+    lens = _check_lens(lens)
     if model not in MODELS:
         raise CalibrationError(f"unknown camera model {model!r}; choose one of {', '.join(MODELS)}")
     if solver not in SOLVERS:
         raise ValueError(f"unknown solver {solver!r}; choose one of {', '.join(SOLVERS)}")
     image_points = np.asarray(image_points, float)
     board_mm = np.asarray(board_mm, float)
-    _check_views(image_points, board_mm, 3, name)
+    found = _check_views(image_points, board_mm, 3, name)
     width, height = image_size
     cx, cy = (width - 1) / 2.0, (height - 1) / 2.0
-    Hs = [homography(board_mm[:, :2], p) for p in image_points]
+    Hs = [homography(board_mm[f, :2], p[f]) for p, f in zip(image_points, found)]
     try:
         fx, fy = focal_lengths_from_homographies(Hs, cx, cy)
     except ValueError as err:
@@ -245,10 +309,10 @@ def calibrate_camera(image_points: np.ndarray, board_mm: np.ndarray, image_size:
 
 
 def _free_intrinsics(model: str, lens: str = "brown4") -> tuple[str, ...]:
-    """The intrinsics ``model`` and ``lens`` estimate: Table 1's ten (no tilt for ``pinhole``), k3 after k2 for
-    ``brown5``."""
+    """The intrinsics ``model`` and ``lens`` estimate: Table 1's ten (no tilt for ``pinhole``) and the lens model's
+    optional terms (:data:`LENS_TERMS`)."""
     return _with_k3(tuple(n for n in INTRINSIC_NAMES if not (model == "pinhole" and n in ("alpha_deg", "beta_deg"))),
-                    lens)
+                    lens, final=True)
 
 
 def _finish_camera(camera, rvecs, tvecs, board_mm, image_points, model, steps, lens="brown4") -> CameraCalibration:
@@ -260,13 +324,15 @@ def _finish_camera(camera, rvecs, tvecs, board_mm, image_points, model, steps, l
     residual = _mono_residual_fn(camera, free, board_mm, image_points)
     jac = block_fd_jacobian(residual, x, k, _mono_rows(V, N))
     r = jac.residual
-    sig = _uncertainty(jac.normal_matrix(), r)
+    found = np.all(np.isfinite(image_points), axis=-1)
+    sig = _uncertainty(jac.normal_matrix(), r, n_residuals=2 * int(found.sum()))
     sigma = {n: float(s) for n, s in zip(free, sig[:k])}
     for n in INTRINSIC_NAMES:
         sigma.setdefault(n, 0.0)          # held fixed by the model
     res_uv = r.reshape(V, N, 2)
-    per_view = np.sqrt(np.mean(np.sum(res_uv ** 2, axis=-1), axis=1))
-    return CameraCalibration(camera, rvecs, tvecs, _rms(res_uv), per_view, sigma, steps, lens)
+    per_view = _per_view_rms(res_uv, found)
+    return CameraCalibration(camera, rvecs, tvecs, _rms(np.where(found[..., None], res_uv, np.nan)), per_view, sigma,
+                             steps, lens)
 
 
 def _mono_rows(n_views, n_points):
@@ -320,6 +386,8 @@ def _stereo_residual_fn(left, right, board_mm, pts_l, pts_r, shared_names):
     V = len(pts_l)
     nl = len(shared_names[0])
     nr = len(shared_names[1])
+    (pts_l, mask_l), (pts_r, mask_r) = _masked(pts_l), _masked(pts_r)
+    every = bool(mask_l.all() and mask_r.all())
 
     def residual(x):
         cl = _with(left, shared_names[0], x[:nl])
@@ -332,6 +400,8 @@ def _stereo_residual_fn(left, right, board_mm, pts_l, pts_r, shared_names):
         tr = poses[:, 3:] @ Rs.T + s[3:]
         el = project_views(cl, poses[:, :3], poses[:, 3:], board_mm) - pts_l
         er = project_views(cr, rr, tr, board_mm) - pts_r
+        if not every:                                   # missing points' residuals held at 0
+            el, er = el * mask_l, er * mask_r
         return np.concatenate([el.ravel(), er.ravel()])
 
     return residual
@@ -357,10 +427,13 @@ def calibrate_stereo(points_left: np.ndarray, points_right: np.ndarray, board_mm
 
     ``points_left``/``points_right``: (V, N, 2) corners of the same V board poses seen by each camera.
     ``solver``: ``schur-lm`` (default) or ``minpack-lm``, see the module docstring (same minimum).
-    ``lens``: ``brown4`` (default: k1 k2 p1 p2) or ``brown5`` (k1 k2 k3 p1 p2: k3 freed with k1 and k2, from 0; its
-    sigma is ``left.sigma["k3"]``/``right.sigma["k3"]``); whether k3 is worth it: :func:`compare_lens_models`.
+    ``lens``: ``brown4`` (default: k1 k2 p1 p2), ``brown5`` (k1 k2 k3 p1 p2: k3 freed with k1 and k2, from 0; its
+    sigma is ``left.sigma["k3"]``/``right.sigma["k3"]``) or ``full`` (also s1-s4 and the skew), or an alias of
+    :data:`LENS_ALIASES`; whether k3 is worth it: :func:`compare_lens_models`, which model the data support:
+    :func:`measurement.calibration.model_selection.select_model`.
+    Missing points are NaN rows (see :func:`calibrate_camera`); a point may be found by one camera only.
     """
-    _check_lens(lens)
+    lens = _check_lens(lens)
     points_left = np.asarray(points_left, float)
     points_right = np.asarray(points_right, float)
     if points_left.shape != points_right.shape:
@@ -388,12 +461,13 @@ def calibrate_stereo(points_left: np.ndarray, points_right: np.ndarray, board_mm
     poses0 = np.hstack([cal_l.rvecs, cal_l.tvecs_mm])
     left, right, R, T, poses, fn, x, k = solve(cal_l.camera, cal_r.camera, ((), ()), R0, T0, poses0)
     r = fn(x)
-    steps.append(("step 5", ("stereo R, T", "left poses"), _rms(r.reshape(-1, 2))))
+    found_all = np.concatenate([np.all(np.isfinite(points_left), -1).ravel(), np.all(np.isfinite(points_right), -1).ravel()])
+    steps.append(("step 5", ("stereo R, T", "left poses"), _rms(r.reshape(-1, 2)[found_all])))
     if joint:
         names = (_free_intrinsics(model, lens), _free_intrinsics(model, lens))
         left, right, R, T, poses, fn, x, k = solve(left, right, names, R, T, poses)
         r = fn(x)
-        steps.append(("joint", ("all intrinsics", "stereo R, T", "left poses"), _rms(r.reshape(-1, 2))))
+        steps.append(("joint", ("all intrinsics", "stereo R, T", "left poses"), _rms(r.reshape(-1, 2)[found_all])))
     # Uncertainties of everything at the solution (all intrinsics of both cameras free).
     names = (_free_intrinsics(model, lens), _free_intrinsics(model, lens))
     fn = _stereo_residual_fn(left, right, board_mm, points_left, points_right, names)
@@ -402,7 +476,7 @@ def calibrate_stereo(points_left: np.ndarray, points_right: np.ndarray, board_mm
     k = len(names[0]) + len(names[1]) + 6
     jac = block_fd_jacobian(fn, x, k, _stereo_rows(V, N))
     r = jac.residual
-    sig = _uncertainty(jac.normal_matrix(), r)
+    sig = _uncertainty(jac.normal_matrix(), r, n_residuals=2 * int(found_all.sum()))
     nl = len(names[0])
     sig_l = {n: float(s) for n, s in zip(names[0], sig[:nl])}
     sig_r = {n: float(s) for n, s in zip(names[1], sig[nl:k - 6])}
@@ -412,13 +486,13 @@ def calibrate_stereo(points_left: np.ndarray, points_right: np.ndarray, board_mm
     sigma_stereo = {"rvec": sig[k - 6:k - 3].tolist(), "T_mm": sig[k - 3:k].tolist()}
     half = len(r) // 2
     el, er = r[:half].reshape(V, N, 2), r[half:].reshape(V, N, 2)
+    fl, fr = np.all(np.isfinite(points_left), -1), np.all(np.isfinite(points_right), -1)
     Rl = Rotation.from_rotvec(poses[:, :3]).as_matrix()
     rr = Rotation.from_matrix(np.einsum("ij,vjk->vik", R, Rl)).as_rotvec()
     tr = poses[:, 3:] @ R.T + T
-    out_l = CameraCalibration(left, poses[:, :3], poses[:, 3:], _rms(el),
-                              np.sqrt(np.mean(np.sum(el ** 2, -1), 1)), sig_l, cal_l.steps, lens)
-    out_r = CameraCalibration(right, rr, tr, _rms(er), np.sqrt(np.mean(np.sum(er ** 2, -1), 1)), sig_r, cal_r.steps,
-                              lens)
+    out_l = CameraCalibration(left, poses[:, :3], poses[:, 3:], _rms(el[fl]), _per_view_rms(el, fl), sig_l,
+                              cal_l.steps, lens)
+    out_r = CameraCalibration(right, rr, tr, _rms(er[fr]), _per_view_rms(er, fr), sig_r, cal_r.steps, lens)
     if out_l.rms_px > 1.0 or out_r.rms_px > 1.0:
         warnings.warn(f"large reprojection error after calibration: left {out_l.rms_px:.3f} px, right "
                       f"{out_r.rms_px:.3f} px (wrong corner order, wrong square size or a bad view?)", stacklevel=2)
@@ -470,7 +544,9 @@ def compare_lens_models(points_left: np.ndarray, points_right: np.ndarray, board
         elif cal.lens != lens:
             raise ValueError(f"the calibration passed as {lens} was made with lens {cal.lens!r}")
     c4, c5 = fits["brown4"], fits["brown5"]
-    V, N = np.asarray(points_left).shape[:2]
+    V = len(points_left)
+    n_found = {s: int(np.all(np.isfinite(np.asarray(p, float)), -1).sum())
+               for s, p in (("left", points_left), ("right", points_right))}
     cameras = {}
     for side in ("left", "right"):
         r4, r5 = c4.rms_px[side], c5.rms_px[side]
@@ -481,9 +557,9 @@ def compare_lens_models(points_left: np.ndarray, points_right: np.ndarray, board
                          "rms_brown5_px": float(r5), "gain_px": float(np.sqrt(max(r4 ** 2 - r5 ** 2, 0.0))),
                          "corner_effect_px": k3_corner_effect_px(cam5.camera)}
     # residual sums of squares of the two fits and the residual variance of the larger model
-    ssr = {lens: sum(c.rms_px[s] ** 2 * V * N for s in ("left", "right")) for lens, c in fits.items()}
+    ssr = {lens: sum(c.rms_px[s] ** 2 * n_found[s] for s in ("left", "right")) for lens, c in fits.items()}
     n_intr = len(_free_intrinsics(c5.model, "brown5"))
-    dof = 4 * V * N - (2 * n_intr + 6 + 6 * V)
+    dof = 2 * (n_found["left"] + n_found["right"]) - (2 * n_intr + 6 + 6 * V)
     chi2_drop = (ssr["brown4"] - ssr["brown5"]) / (ssr["brown5"] / max(dof, 1))
     supported = [s for s in ("left", "right") if cameras[s]["z"] >= z_threshold]
     parts = [f"{s} k3 = {cameras[s]['k3']:.4g} ± {cameras[s]['sigma_k3']:.2g} ({cameras[s]['z']:.1f} sigma)"

@@ -27,7 +27,7 @@ import cv2
 import numpy as np
 from scipy.optimize import least_squares
 
-from measurement.camera import MAX_TILT_DEG, ScheimpflugCamera, tilt_homography
+from measurement.camera import MAX_TILT_DEG, THIN_PRISM_NAMES, ScheimpflugCamera, tilt_homography
 
 __all__ = ["TargetModel", "ConversionCost", "nearest_camera", "nearest_rig", "projection_cost_px",
            "DICE_MODEL", "VIC3D_MODEL", "MATCHID_MODEL", "EXACT_PX"]
@@ -55,6 +55,8 @@ class TargetModel:
         Whether p1, p2 (Brown decentering, OpenCV's convention) exist.
     skew : bool
         Whether a skew ``K[0, 1]`` (px) exists.
+    thin_prism : bool
+        Whether OpenCV's thin-prism terms s1-s4 exist (none of the DIC tools' formats has them).
     """
 
     name: str
@@ -62,6 +64,7 @@ class TargetModel:
     radial_terms: int = 3
     tangential: bool = True
     skew: bool = True
+    thin_prism: bool = False
 
     def __post_init__(self):
         if self.tilt not in ("none", "opencv"):
@@ -83,6 +86,8 @@ class TargetModel:
             missing.append("the tangential terms p1, p2")
         if not self.skew and camera.skew != 0.0:
             missing.append("the skew")
+        if not self.thin_prism and camera.has_thin_prism:
+            missing.append("the thin prism s1-s4")
         return missing
 
 
@@ -167,7 +172,8 @@ def _direct(camera: ScheimpflugCamera, model: TargetModel) -> ScheimpflugCamera:
         k1=camera.k1, k2=camera.k2, k3=camera.k3 if model.radial_terms == 3 else 0.0,
         p1=camera.p1 if model.tangential else 0.0, p2=camera.p2 if model.tangential else 0.0,
         skew=camera.skew if model.skew else 0.0, width=camera.width, height=camera.height,
-        tilt_model="opencv" if model.tilt == "opencv" else "rmm")
+        tilt_model="opencv" if model.tilt == "opencv" else "rmm",
+        **({n: getattr(camera, n) for n in THIN_PRISM_NAMES} if model.thin_prism else {}))
 
 
 class _Parametrisation:
@@ -183,6 +189,8 @@ class _Parametrisation:
             names.append("skew")
         if model.tilt == "opencv":
             names += ["alpha_deg", "beta_deg"]
+        if model.thin_prism:
+            names += list(THIN_PRISM_NAMES)
         self.names, self.template, self.rotation_axes = names, template, rotation_axes
 
     def vector(self, camera: ScheimpflugCamera, rvec: np.ndarray) -> np.ndarray:
