@@ -89,6 +89,26 @@ def stats_um(d):
     return d.mean(0), np.sqrt((d ** 2).mean(0)), float(np.sqrt((d ** 2).sum(1).mean()))
 
 
+def flatness_um(X_mm: np.ndarray) -> tuple[float, float]:
+    """RMS and largest distance (um) of (N, 3) points from their least-squares plane (SVD)."""
+    X = X_mm[np.all(np.isfinite(X_mm), axis=1)]
+    c = X.mean(axis=0)
+    normal = np.linalg.svd(X - c, full_matrices=False)[2][-1]
+    d = (X - c) @ normal * 1e3
+    return float(np.sqrt(np.mean(d ** 2))), float(np.max(np.abs(d)))
+
+
+def run_stereo(work: Path, calib: str, out: str, last: str, order: int) -> tuple[list[str], int]:
+    cmd = [sys.executable, "-m", "workbench.cli", "stereo", "--calib", calib,
+           "--left-ref", "images/GT4-0000_0.tif", "--right-ref", "images/GT4-0000_1.tif",
+           "--left", f"images/GT4-000[1-{last[-1]}]_0.tif", "--right", f"images/GT4-000[1-{last[-1]}]_1.tif",
+           "--roi", ROI, "--subset", str(SUBSET), "--step", str(STEP), "--order", str(order),
+           "--out", out, "--overwrite"]
+    print("run (in the work folder):", " ".join(c if "[" not in c else f"'{c}'" for c in cmd[1:]))
+    r = subprocess.run(cmd, cwd=work, capture_output=True, text=True)
+    return (r.stdout + r.stderr).splitlines(), r.returncode
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("source", type=Path, help="DICe's bare git dir, or a folder with the stereo_d_spec files")
@@ -96,6 +116,8 @@ def main(argv=None) -> int:
                     help="our subset shape function (DICe's params: translation + normal strain; 1 is closest)")
     ap.add_argument("--keep", type=Path, default=None, help="work here (kept) instead of a temporary folder")
     ap.add_argument("--png", type=Path, default=None, help="write a map of the W (out-of-plane) difference, last frame")
+    ap.add_argument("--compare-k3", action="store_true",
+                    help="also measure the reference with k3 dropped from the calibration (flatness with and without)")
     args = ap.parse_args(argv)
 
     from measurement.calibration.formats import load_any_calibration
@@ -119,17 +141,10 @@ def main(argv=None) -> int:
         frames = sorted((work / "images").glob("GT4-*_0.tif"))
         last = frames[-1].name[4:8]
         out = work / f"ours_order{args.order}"
-        cmd = [sys.executable, "-m", "workbench.cli", "stereo", "--calib", "cal.xml",
-               "--left-ref", "images/GT4-0000_0.tif", "--right-ref", "images/GT4-0000_1.tif",
-               "--left", f"images/GT4-000[1-{last[-1]}]_0.tif", "--right", f"images/GT4-000[1-{last[-1]}]_1.tif",
-               "--roi", ROI, "--subset", str(SUBSET), "--step", str(STEP), "--order", str(args.order),
-               "--out", out.name, "--overwrite"]
-        print("run (in the work folder):", " ".join(c if "[" not in c else f"'{c}'" for c in cmd[1:]))
-        r = subprocess.run(cmd, cwd=work, capture_output=True, text=True)
-        log = (r.stdout + r.stderr).splitlines()
+        log, returncode = run_stereo(work, "cal.xml", out.name, last, args.order)
         print("\n".join(line for line in log if line.strip() and not line.startswith("stereo states")))
-        if r.returncode != 0:
-            print(f"workbench stereo exited {r.returncode}")
+        if returncode != 0:
+            print(f"workbench stereo exited {returncode}")
             if not (out / "reference.csv").is_file():
                 return 1
 
@@ -142,6 +157,27 @@ def main(argv=None) -> int:
         ia, ib = ia[ok], ib[ok]
         print(f"\npoints: ours {ours_ref.valid.sum()}/{ours_ref.x_px.size} valid, DICe {dref.valid.sum()}/"
               f"{dref.x_px.size} valid, common {ia.size}")
+        ja, jb = match(ours_ref.x_px, ours_ref.y_px, dref.x_px, dref.y_px)
+        in_roi = dref.valid[jb]
+        print(f"DICe's ROI (the points DICe measures): {in_roi.sum()}; ours measures "
+              f"{int(ours_ref.valid[ja][in_roi].sum())} of them "
+              f"({100.0 * ours_ref.valid[ja][in_roi].mean():.1f} %)")
+        rms, worst = flatness_um(ours_ref.X_mm[ours_ref.valid])
+        print(f"flatness of our reference points (plane fit, {int(ours_ref.valid.sum())} points): RMS {rms:.2f} um, "
+              f"max {worst:.2f} um (k3 kept, as the VIC-3D calibration has it)")
+        if args.compare_k3:
+            from dataclasses import replace
+
+            from measurement.calibration.io import CalibratedRig, save_rig
+
+            no_k3 = CalibratedRig(rig.model, replace(rig.left, k3=0.0), replace(rig.right, k3=0.0),
+                                  rig.R_right_from_left, rig.T_right_from_left_mm)
+            save_rig(no_k3, work / "cal_no_k3.json")
+            log2, rc2 = run_stereo(work, "cal_no_k3.json", "ours_no_k3", "0001", args.order)
+            ref2 = read_result(work / "ours_no_k3" / "reference.csv")
+            rms2, worst2 = flatness_um(ref2.X_mm[ref2.valid])
+            print(f"flatness with k3 dropped (both cameras, everything else as the file): RMS {rms2:.2f} um, "
+                  f"max {worst2:.2f} um ({int(ref2.valid.sum())} points; stereo exit {rc2})")
         A, B = ours_ref.X_mm[ia], dref_X[ib]
         R, t = rigid_fit(A, B)
         res = A @ R.T + t - B

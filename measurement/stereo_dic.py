@@ -30,6 +30,7 @@ from measurement.dic import DICResult, DICSettings, PoiGrid, Seed, Status, corre
 from measurement.dic.correlate import PreparedImage, prepare_image
 from measurement.dic.guide import band_regions
 from measurement.dic.initial import translation_parameters
+from measurement.dic.roi import AutoRoi, AutoRoiReport, expand_result, flag_inconsistent, texture_grid
 from measurement.stereo import triangulate
 
 #: Default matching settings for stereo: the paper's 65 px subset (it quotes 64) and step 5, second order.
@@ -309,6 +310,12 @@ class StereoShape:
     reference: PreparedImage | None = field(default=None, repr=False)    # left reference, prepared once
     reference_features: Features | None = field(default=None, repr=False)
     quality: StereoQuality | None = None      # residual statistics and measured fraction
+    #: With an automatic ROI (:mod:`measurement.dic.roi`): its settings, the textured nodes of ``grid`` that are
+    #: correlated, the noise the texture test used (grey) and what it flagged; None without.
+    auto_roi: AutoRoi | None = None
+    measure_grid: PoiGrid | None = field(default=None, repr=False)
+    noise_sigma_grey: float | None = None
+    auto_roi_report: AutoRoiReport | None = None
 
 
 @dataclass
@@ -341,6 +348,7 @@ class StereoState:
     left_match: DICResult
     right_match: DICResult
     quality: StereoQuality | None = None      # residual statistics, measured fraction of the reference's points
+    auto_roi_report: AutoRoiReport | None = None    # what the automatic ROI flagged, if the shape has one
 
     @property
     def valid(self) -> np.ndarray:
@@ -361,8 +369,14 @@ def _check_rig_images(left: ScheimpflugCamera, right: ScheimpflugCamera, images:
 def reference_shape(left: ScheimpflugCamera, right: ScheimpflugCamera, R_right_from_left, T_right_from_left_mm,
                     left_ref: np.ndarray, right_ref: np.ndarray, settings: DICSettings = STEREO_DIC_SETTINGS, *,
                     roi=None, mask=None, max_median_residual_px: float | None = MAX_MEDIAN_RESIDUAL_PX,
-                    min_measured_fraction: float | None = MIN_MEASURED_FRACTION) -> StereoShape:
+                    min_measured_fraction: float | None = MIN_MEASURED_FRACTION,
+                    auto_roi: AutoRoi | None = None) -> StereoShape:
     """Match left-ref -> right-ref (feature seeds) and triangulate the reference shape.
+
+    ``auto_roi`` (default None: off) correlates only the grid nodes whose left-reference subset passes
+    :func:`measurement.dic.roi.texture_mask` (the others are LOW_TEXTURE) and flags the matches that fail
+    :func:`measurement.dic.roi.consistency_flags` INCONSISTENT; the measured fraction is then of the textured
+    nodes. :func:`measure_state` does the same for every state of this shape.
 
     Raises
     ------
@@ -377,17 +391,27 @@ def reference_shape(left: ScheimpflugCamera, right: ScheimpflugCamera, R_right_f
                     interpolation=settings.interpolation)
     prepared = prepare_image(left_ref, settings.interpolation, True, "left reference", settings.lowpass_sigma_px)
     features = detect_features(left_ref)
-    match = correlate_with_features(prepared, right_ref, settings, grid, name="right reference",
+    measure_grid, sigma, report = grid, None, None
+    if auto_roi is not None:
+        measure_grid, sigma = texture_grid(left_ref, grid, auto_roi)
+        if not measure_grid.active.any():
+            raise StereoMatchError(f"auto ROI: none of the {grid.count} points of interest of the left reference "
+                                   f"has enough texture (noise {sigma:.3g} grey)")
+    match = correlate_with_features(prepared, right_ref, settings, measure_grid, name="right reference",
                                     reference_features=features)
+    if auto_roi is not None:
+        match, flags = flag_inconsistent(expand_result(match, grid), auto_roi, left_ref, sigma)
+        report = AutoRoiReport(grid.count, grid.count - measure_grid.count,
+                               int(np.count_nonzero(match.status == Status.INCONSISTENT)), sigma, flags.counts())
     pixels_left = np.column_stack([match.x, match.y]).astype(np.float64)
     pixels_right = pixels_left + np.column_stack([match.u, match.v])
     tri = triangulate(left, right, R_right_from_left, T_right_from_left_mm, pixels_left, pixels_right)
     valid = tri.valid & match.converged
-    quality = stereo_quality(tri.reprojection_error_px, valid)
+    quality = stereo_quality(tri.reprojection_error_px, valid, None if auto_roi is None else measure_grid.count)
     check_stereo_quality(quality, "reference shape (left reference -> right reference)",
                          max_median_residual_px=max_median_residual_px, min_measured_fraction=min_measured_fraction)
     return StereoShape(match.x, match.y, match, tri.X_left_mm, tri.reprojection_error_px, valid, grid, prepared,
-                       features, quality)
+                       features, quality, auto_roi, None if auto_roi is None else measure_grid, sigma, report)
 
 
 def measure_state(left: ScheimpflugCamera, right: ScheimpflugCamera, R_right_from_left, T_right_from_left_mm,
@@ -413,10 +437,19 @@ def measure_state(left: ScheimpflugCamera, right: ScheimpflugCamera, R_right_fro
     with ThreadPoolExecutor(2) as pool:
         left_matches, right_matches = pool.map(lambda item: match_features(features, item[0], name=item[1]),
                                                ((left_def, "left deformed"), (right_def, "right deformed")))
-    left_match = correlate_with_features(reference, left_def, settings, shape.grid, name="left deformed",
+    grid = shape.measure_grid if shape.measure_grid is not None else shape.grid
+    left_match = correlate_with_features(reference, left_def, settings, grid, name="left deformed",
                                          matches=left_matches)
-    right_match = correlate_with_features(reference, right_def, settings, shape.grid, name="right deformed",
+    right_match = correlate_with_features(reference, right_def, settings, grid, name="right deformed",
                                           matches=right_matches)
+    reasons = {}
+    if shape.auto_roi is not None:
+        left_match, left_flags = flag_inconsistent(expand_result(left_match, shape.grid), shape.auto_roi, left_ref,
+                                                   shape.noise_sigma_grey)
+        right_match, right_flags = flag_inconsistent(expand_result(right_match, shape.grid), shape.auto_roi,
+                                                     left_ref, shape.noise_sigma_grey)
+        for name_, n in (*left_flags.counts().items(), *right_flags.counts().items()):
+            reasons[name_] = reasons.get(name_, 0) + n
     base = np.column_stack([shape.x, shape.y]).astype(np.float64)
     tri = triangulate(left, right, R_right_from_left, T_right_from_left_mm,
                       base + np.column_stack([left_match.u, left_match.v]),
@@ -434,5 +467,10 @@ def measure_state(left: ScheimpflugCamera, right: ScheimpflugCamera, R_right_fro
     quality = stereo_quality(residual, ok, int(np.count_nonzero(shape.valid)))
     check_stereo_quality(quality, name, max_median_residual_px=max_median_residual_px,
                          min_measured_fraction=min_measured_fraction)
+    report = None
+    if shape.auto_roi is not None:
+        low = shape.auto_roi_report.low_texture if shape.auto_roi_report is not None else 0
+        report = AutoRoiReport(shape.x.size, low, int(np.count_nonzero(status == Status.INCONSISTENT)),
+                               shape.noise_sigma_grey, reasons)
     return StereoState(X, U, np.linalg.norm(U, axis=1), residual, np.where(ok, zncc, np.nan), status, left_match,
-                       right_match, quality)
+                       right_match, quality, report)

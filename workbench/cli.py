@@ -278,6 +278,31 @@ def _poi_grid(image: np.ndarray, args, mask=None, what: str = "image"):
                          f"({err})") from None
 
 
+def _auto_roi_options(parser) -> None:
+    """``--auto-roi-precision`` and ``--noise-sigma`` of the ``dic`` and ``stereo`` commands (need ``--auto-roi``)."""
+    from measurement.dic.roi import DEFAULT_TARGET_PRECISION_PX
+
+    parser.add_argument("--auto-roi-precision", type=_positive_float, default=None,
+                        help="with --auto-roi: largest noise-limited std of u, v a subset must reach (px), default "
+                             f"{DEFAULT_TARGET_PRECISION_PX:g}")
+    parser.add_argument("--noise-sigma", type=_non_negative_float, default=None,
+                        help="with --auto-roi: image noise std (grey levels), default estimated from the reference")
+
+
+def _auto_roi(args):
+    """The :class:`measurement.dic.roi.AutoRoi` of the options, None without ``--auto-roi`` (whose options then
+    are an error)."""
+    from measurement.dic.roi import DEFAULT_TARGET_PRECISION_PX, AutoRoi
+
+    if not args.auto_roi:
+        for option, value in (("--auto-roi-precision", args.auto_roi_precision), ("--noise-sigma", args.noise_sigma)):
+            if value is not None:
+                raise ValueError(f"{option} needs --auto-roi")
+        return None
+    precision = args.auto_roi_precision if args.auto_roi_precision is not None else DEFAULT_TARGET_PRECISION_PX
+    return AutoRoi(noise_sigma_grey=args.noise_sigma, target_precision_px=precision)
+
+
 # ------------------------------------------------------------------------------------------------------------
 def _parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="workbench", description="Scheimpflug stereo-DIC virtual lab.")
@@ -384,22 +409,31 @@ def _parser() -> argparse.ArgumentParser:
     dof.add_argument("--spp", type=_positive_int, default=64)
     dof.add_argument("--seed", type=_seed, default=0)
     dof.add_argument("--out", type=Path, required=True)
-    cal = sub.add_parser("calibrate", help="stepwise Scheimpflug stereo calibration from checkerboard image pairs")
-    cal.add_argument("--left", required=True, help="glob of left images, e.g. 'views/left_*.png' (sorted)")
-    cal.add_argument("--right", required=True, help="glob of right images (sorted; paired with the left ones)")
+    cal = sub.add_parser("calibrate", help="stepwise Scheimpflug stereo calibration from checkerboard image pairs "
+                                           "(or one camera's images with --camera)")
+    cal.add_argument("--left", default=None, help="glob of left images, e.g. 'views/left_*.png' (sorted)")
+    cal.add_argument("--right", default=None, help="glob of right images (sorted; paired with the left ones)")
+    cal.add_argument("--camera", default=None, metavar="GLOB",
+                     help="single-camera calibration of these images instead of a stereo pair (--left/--right); "
+                          "writes a camera JSON (and an OpenCV YAML beside it)")
     cal.add_argument("--square-mm", type=_positive_float, default=5.0)
     cal.add_argument("--pattern", type=_pattern, default=(11, 8), help="inner corners, COLSxROWS (default 11x8)")
-    cal.add_argument("--model", choices=("rmm", "opencv-tilt", "pinhole"), default="rmm")
+    cal.add_argument("--model", choices=("rmm", "opencv-tilt", "pinhole", "auto"), default="rmm",
+                     help="camera model (default rmm, the paper's); auto: pinhole or rmm, whichever is the simplest "
+                          "that held-out views support (and each candidate's tilt / sigma is printed)")
     cal.add_argument("--tilt-guess-deg", type=_tilt_pair, default=(0.0, 0.0),
                      help="datasheet tilt (alpha,beta) of the left camera for step 1")
     cal.add_argument("--tilt-guess-right-deg", type=_tilt_pair, default=None,
                      help="right camera's (alpha,beta); default mirrors the left one: (alpha,-beta)")
     cal.add_argument("--no-joint", action="store_true", help="skip the final joint refinement")
     cal.add_argument("--refine-corners", action="store_true", help="saddle-fit refinement of OpenCV's corners")
-    from measurement.calibration.stepwise import LENSES
-    cal.add_argument("--lens", choices=LENSES, default="brown4",
-                     help="lens distortion: brown4 (k1 k2 p1 p2, the paper) or brown5 (also the r^6 term k3; then "
-                          "both are fitted and the output says whether k3 is worth it)")
+    from measurement.calibration.stepwise import LENS_ALIASES, LENSES
+    cal.add_argument("--lens", choices=tuple(LENS_ALIASES) + LENSES + ("auto",), default="brown4",
+                     help="lens distortion: k1k2p1p2 = brown4 (the paper, default), k1k2k3p1p2 = brown5 (also the r^6 "
+                          "term k3; then both are fitted and the output says whether k3 is worth it), full (also the "
+                          "thin prism s1-s4 and the skew), or auto (the simplest the held-out views support)")
+    cal.add_argument("--folds", type=_positive_int, default=8,
+                     help="most folds of the held-out-view test of --model/--lens auto (default 8)")
     cal.add_argument("--out", type=Path, required=True, help="calibration JSON (a .yaml OpenCV export is written beside)")
 
     from measurement.stereo_dic import MAX_MEDIAN_RESIDUAL_PX, MIN_MEASURED_FRACTION
@@ -421,6 +455,10 @@ def _parser() -> argparse.ArgumentParser:
     st.add_argument("--min-measured-fraction", type=_fraction, default=MIN_MEASURED_FRACTION,
                     help="refuse the reference (of its points) or a state (of the reference's points) measuring less "
                          f"than this fraction, default {MIN_MEASURED_FRACTION:g}")
+    st.add_argument("--auto-roi", action="store_true",
+                    help="automatic ROI: points whose left-reference subset lacks texture are flagged low_texture "
+                         "and not matched; matches that disagree with their neighbours are flagged inconsistent")
+    _auto_roi_options(st)
     st.add_argument("--overwrite", action="store_true",
                     help="replace earlier results in --out (deletes exactly the files its manifest.json lists)")
     st.add_argument("--out", type=Path, required=True,
@@ -446,6 +484,10 @@ def _parser() -> argparse.ArgumentParser:
     dic.add_argument("--lowpass-sigma", type=_non_negative_float, default=0.0,
                      help="Gaussian pre-filter sigma (px), default off")
     dic.add_argument("--threads", type=_positive_int, default=None, help="worker threads (default: all cores)")
+    dic.add_argument("--auto-roi", action="store_true",
+                     help="automatic ROI: points whose reference subset lacks texture are flagged low_texture and not "
+                          "correlated; converged points that disagree with their neighbours are flagged inconsistent")
+    _auto_roi_options(dic)
     dic.add_argument("--out", type=Path, required=True, help="CSV of the points (x,y,u,v,zncc,iterations,status,...)")
 
     for name, text in (("sweep", "run a study file (axes x repeats) on Dask: results.nc, results.csv, report.html"),
@@ -473,12 +515,13 @@ def _parser() -> argparse.ArgumentParser:
     cal_files = sub.add_parser("calibration", help="calibration files: convert between formats")
     cal_sub = cal_files.add_subparsers(dest="what", required=True)
     conv = cal_sub.add_parser("convert", help="calibration files between this project's JSON, OpenCV YAML/XML, DICe "
-                                              "cal.xml, VIC-3D XML and MatchID .caldat; says what the target costs")
+                                              "cal.xml, VIC-3D XML, MatchID .caldat and MATLAB stereoParameters "
+                                              "(toStruct as JSON or .mat); says what the target costs")
     conv.add_argument("source", type=Path, help="any of those (the format is detected from the content)")
     conv.add_argument("target", type=Path, help="output file (written atomically)")
-    conv.add_argument("--to", choices=("json", "opencv", "dice", "vic3d", "matchid"), default=None,
+    conv.add_argument("--to", choices=("json", "opencv", "dice", "vic3d", "matchid", "matlab"), default=None,
                       help="target format (default from the suffix: .json json, .yaml/.yml/.xml opencv, .cal vic3d, "
-                           ".caldat matchid)")
+                           ".caldat matchid, .mat matlab; a MATLAB JSON needs --to matlab)")
     conv.add_argument("--image-size", type=_pair, default=None, metavar="W,H",
                       help="image size of a source that holds none (MatchID .caldat), px")
     conv.add_argument("--frame-rotation", action="store_true",
@@ -601,6 +644,7 @@ def _stereo(args) -> int:
         _check_against_calibration(_read_image(fl, "left image"), rig.left, f"left image {fl}")
         _check_against_calibration(_read_image(fr, "right image"), rig.right, f"right image {fr}")
     _poi_grid(left_ref, args, what="left reference image")
+    auto_roi = _auto_roi(args)
     settings = DICSettings(subset_size=args.subset, step=args.step, order=args.order, min_zncc=args.min_zncc)
     names = [f"state_{k:03d}" for k in range(len(left_files))]
     planned = ["reference.csv", "reference.vtk", "summary.csv"] + [f"{n}.{e}" for n in names for e in ("csv", "vtk")]
@@ -611,7 +655,7 @@ def _stereo(args) -> int:
 
     try:
         shape = reference_shape(rig.left, rig.right, rig.R_right_from_left, rig.T_right_from_left_mm, left_ref,
-                                right_ref, settings, roi=args.roi, **thresholds)
+                                right_ref, settings, roi=args.roi, auto_roi=auto_roi, **thresholds)
     except StereoQualityError as err:
         raise ValueError(f"{err}{hint}") from None
     prepare_folder(args.out, "stereo", planned, overwrite=args.overwrite)
@@ -620,6 +664,8 @@ def _stereo(args) -> int:
     q = shape.quality
     print(f"reference: {q.measured}/{shape.x.size} points triangulated, median residual {q.median_residual_px:.4f} px, "
           f"95th percentile {q.p95_residual_px:.4f} px")
+    if shape.auto_roi_report is not None:
+        print(f"reference {shape.auto_roi_report.summary()}")
     rows = [{"state": "reference", "left": str(args.left_ref), "right": str(args.right_ref), "quality": q}]
     from tqdm import tqdm
 
@@ -645,11 +691,15 @@ def _stereo(args) -> int:
         tqdm.write(f"state {k} ({Path(fl).name}, {Path(fr).name}): {q.measured}/{q.points} points, median residual "
                    f"{q.median_residual_px:.4f} px, 95th percentile {q.p95_residual_px:.4f} px, mean D "
                    f"{rows[-1]['mean_D_mm']:.4f} mm")
+        if state.auto_roi_report is not None:
+            tqdm.write(f"state {k} {state.auto_roi_report.summary()}")
     written.append(write_state_summary(args.out / "summary.csv", rows).name)
     complete_folder(args.out, "stereo", written,
                     {"calib": str(args.calib), "left_ref": str(args.left_ref), "right_ref": str(args.right_ref),
                      "left": args.left, "right": args.right, "roi": args.roi, "subset": args.subset,
                      "step": args.step, "order": args.order, "min_zncc": args.min_zncc, **thresholds,
+                     "auto_roi": None if auto_roi is None else vars(auto_roi) | {"noise_sigma_used_grey":
+                                                                                  shape.noise_sigma_grey},
                      "skipped_states": skipped})
     print(f"wrote {args.out} ({len(left_files) - len(skipped)} of {len(left_files)} states; summary.csv)")
     if skipped:
@@ -686,14 +736,22 @@ def _dic(args) -> int:
     if abs(u) >= w or abs(v) >= h:
         raise ValueError(f"--seed-guess {u:g},{v:g} moves the seed search outside the {_size(reference)} image")
     grid = _poi_grid(reference, args, mask)
+    auto_roi = _auto_roi(args)
     settings = DICSettings(subset_size=args.subset, step=args.step, order=args.order, interpolation=args.interp,
                            search_radius_px=args.search_radius, min_zncc=args.min_zncc,
                            tolerance_px=args.tolerance, lowpass_sigma_px=args.lowpass_sigma)
     if args.threads:
         numba.set_num_threads(min(args.threads, numba.config.NUMBA_NUM_THREADS))
+    report = None
     try:
-        result = correlate(reference, deformed, settings, grid=grid, seed_points_xy=args.seed_point,
-                           seed_guess_px=args.seed_guess)
+        if auto_roi is None:
+            result = correlate(reference, deformed, settings, grid=grid, seed_points_xy=args.seed_point,
+                               seed_guess_px=args.seed_guess)
+        else:
+            from measurement.dic.roi import correlate_auto_roi
+
+            result, report = correlate_auto_roi(reference, deformed, settings, grid=grid, auto_roi=auto_roi,
+                                                seed_points_xy=args.seed_point, seed_guess_px=args.seed_guess)
     except ValueError as err:
         if str(err).startswith("seed point"):
             raise ValueError(f"--seed-point: {err}") from None
@@ -702,6 +760,8 @@ def _dic(args) -> int:
     ok = result.converged
     counts = ", ".join(f"{name.lower()} {n}" for name, n in result.status_counts().items())
     print(f"{result.x.size} points ({counts}) in {result.timings_s['total']:.2f} s; wrote {args.out}")
+    if report is not None:
+        print(report.summary())
     if ok.any():
         print(f"  u {np.nanmin(result.u):.4f} .. {np.nanmax(result.u):.4f} px, v {np.nanmin(result.v):.4f} .. "
               f"{np.nanmax(result.v):.4f} px, median ZNCC {np.median(result.zncc[ok]):.4f}, "
@@ -713,7 +773,7 @@ def _dic(args) -> int:
     return 0
 
 
-def _calibration_texts(cal, pairs) -> tuple[str, str]:
+def _calibration_texts(cal, pairs, extra: dict | None = None) -> tuple[str, str]:
     """The calibration JSON and its OpenCV YAML export as texts, built before either file is written."""
     import tempfile
 
@@ -723,11 +783,102 @@ def _calibration_texts(cal, pairs) -> tuple[str, str]:
         json_path, yaml_path = Path(tmp) / "calibration.json", Path(tmp) / "calibration.yaml"
         try:
             save_calibration(cal, json_path, extra={"images": {"left": pairs.left_files, "right": pairs.right_files,
-                                                               "dropped": pairs.dropped}})
+                                                               "dropped": pairs.dropped}, **(extra or {})})
             export_opencv_yaml(cal, yaml_path)
             return json_path.read_text(encoding="utf-8"), yaml_path.read_text(encoding="utf-8")
         except OSError as err:
             raise OSError(f"cannot build the calibration files in {tmp}: {err.strerror or err}") from None
+
+
+def _auto_candidates(model: str, lens: str) -> list[tuple[str, str]]:
+    """The (model, lens) candidates of ``--model auto`` / ``--lens auto`` (the other option fixed if not auto)."""
+    from measurement.calibration.stepwise import LENSES, canonical_lens
+
+    models = ("pinhole", "rmm") if model == "auto" else (model,)
+    lenses = LENSES if lens == "auto" else (canonical_lens(lens),)
+    return [(m, ln) for m in models for ln in lenses]
+
+
+def _parameter_names(lens: str) -> tuple[str, ...]:
+    from measurement.calibration.stepwise import LENS_TERMS
+
+    terms = LENS_TERMS[lens]
+    return (("fx", "fy") + (("skew",) if "skew" in terms else ()) + ("cx", "cy", "alpha_deg", "beta_deg", "k1", "k2")
+            + (("k3",) if "k3" in terms else ()) + ("p1", "p2") + tuple(t for t in terms if t.startswith("s")))
+
+
+def _calibration_check(args) -> tuple[str, str]:
+    """Options of ``calibrate`` checked before any board is detected; returns the (model, lens) as asked."""
+    if args.camera is not None and (args.left is not None or args.right is not None):
+        raise ValueError("--camera calibrates one camera: give its images with --camera only, not --left/--right")
+    if args.camera is None and (args.left is None or args.right is None):
+        raise ValueError("give --left and --right (a stereo pair) or --camera (one camera)")
+    if args.out.suffix.lower() in (".yaml", ".yml", ".xml"):
+        raise ValueError(f"--out {args.out} names the YAML export; give the calibration JSON (e.g. "
+                         f"{args.out.with_suffix('.json')}): the .yaml is written beside it")
+    return args.model, args.lens
+
+
+def _calibrate_one_camera(args) -> int:
+    """``workbench calibrate --camera GLOB``: steps 1-4 (and the final refinement) of one camera."""
+    import warnings
+
+    from measurement.calibration.detection import board_points_mm
+    from measurement.calibration.images import MIN_VIEWS, detect_views
+    from measurement.calibration.io import opencv_camera_yaml_text, save_camera_calibration
+    from measurement.calibration.model_selection import select_camera_model, significance_lines, term_significance
+    from measurement.calibration.stepwise import calibrate_camera
+    from workbench.manifest import write_texts_together
+
+    files = _glob_files(args.camera, "--camera")
+    if len(files) < MIN_VIEWS:
+        raise ValueError(f"calibration needs at least {MIN_VIEWS} images; --camera {args.camera!r} matches {len(files)}")
+    yaml_out = args.out.with_suffix(".yaml")
+    _output_file(args.out)
+    _output_file(yaml_out, "the YAML export beside --out")
+    views = detect_views(files, args.pattern, refine=args.refine_corners)
+    board = board_points_mm(args.pattern, args.square_mm)
+    candidates = _auto_candidates(args.model, args.lens)
+    rows = []
+    if len(candidates) > 1:
+        (model, lens), rows = select_camera_model(views.points, board, views.image_size, candidates=candidates,
+                                                  folds=args.folds, tilt_guess_deg=args.tilt_guess_deg)
+        print(f"  model selection over {len(rows)} candidates ({min(args.folds, len(views.files))}-fold held-out "
+              "views; simplest within one standard error of the best):")
+        for r in rows:
+            print(f"    {r['model']:<8} {r['lens']:<7} held-out MSE {r['held_out_mse_px2']:.5f} ± {r['se_px2']:.5f} "
+                  f"px²{'  <- chosen' if r['chosen'] else ''}")
+    else:
+        model, lens = candidates[0]
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        cal = calibrate_camera(views.points, board, views.image_size, model=model, tilt_guess_deg=args.tilt_guess_deg,
+                               lens=lens)
+    for w in caught:
+        print(f"warning: {w.message}", file=sys.stderr)
+    extra = {"images": {"files": views.files, "dropped": views.dropped},
+             "significance": term_significance(cal, model)["camera"],
+             **({"model_selection": {"rule": "simplest candidate within one standard error of the lowest held-out "
+                                              "MSE", "candidates": rows}} if rows else {})}
+    import tempfile
+
+    with tempfile.TemporaryDirectory(prefix="workbench-calibrate-") as tmp:     # validated text, then both files
+        json_path = Path(tmp) / "camera.json"
+        save_camera_calibration(cal, json_path, model=model, extra=extra)
+        json_text = json_path.read_text(encoding="utf-8")
+    write_texts_together({args.out: json_text, yaml_out: opencv_camera_yaml_text(cal, yaml_out)})
+    print(f"calibrated one camera ({model}, lens {lens}) from {len(views.files)} images ({len(views.dropped)} dropped)")
+    params = ", ".join(f"{n}={getattr(cal.camera, n):.5g}±{cal.sigma.get(n, 0.0):.2g}" for n in _parameter_names(lens)
+                       if not (model == "pinhole" and n in ("alpha_deg", "beta_deg")))
+    print(f"  reprojection RMS {cal.rms_px:.4f} px; {params}")
+    lines, warns = significance_lines(cal, model=model)
+    if lines:
+        print("  terms beyond the pinhole camera with k1 k2 p1 p2 (value ± sigma, z = |value| / sigma):")
+        print("\n".join(lines))
+    for w in warns:
+        print(f"warning: {w}", file=sys.stderr)
+    print(f"  wrote {args.out} and {yaml_out}")
+    return 0
 
 
 def _calibrate(args) -> int:
@@ -735,9 +886,9 @@ def _calibrate(args) -> int:
     from workbench.manifest import write_texts_together
 
     # Options and inputs are checked before any board is detected.
-    if args.out.suffix.lower() in (".yaml", ".yml"):
-        raise ValueError(f"--out {args.out} names the YAML export; give the calibration JSON (e.g. "
-                         f"{args.out.with_suffix('.json')}): the .yaml is written beside it")
+    model, lens = _calibration_check(args)
+    if args.camera is not None:
+        return _calibrate_one_camera(args)
     _output_file(args.out)
     yaml_out = args.out.with_suffix(".yaml")
     _output_file(yaml_out, "the YAML export beside --out")
@@ -754,38 +905,62 @@ def _calibrate(args) -> int:
             raise ValueError(f"image {f} is {_size(image)} but {first[1]} is {first[0][1]} x {first[0][0]} px: all "
                              "images must have one size")
     guess_r = args.tilt_guess_right_deg or (args.tilt_guess_deg[0], -args.tilt_guess_deg[1])
-    cal, pairs = calibrate_from_files(left, right, square_mm=args.square_mm, pattern_size=args.pattern,
-                                      model=args.model, tilt_guess_left_deg=args.tilt_guess_deg,
-                                      tilt_guess_right_deg=guess_r, joint=not args.no_joint,
-                                      refine_corners=args.refine_corners)
-    comparison = None
-    if args.lens == "brown5":
-        # the four-term fit above is the reference of the comparison; the five-term one is what is written
-        from measurement.calibration.detection import board_points_mm
-        from measurement.calibration.stepwise import calibrate_stereo, compare_lens_models
+    from measurement.calibration.detection import board_points_mm
+    from measurement.calibration.stepwise import calibrate_stereo, canonical_lens
 
-        board = board_points_mm(args.pattern, args.square_mm)
-        settings = dict(model=args.model, tilt_guess_left_deg=args.tilt_guess_deg, tilt_guess_right_deg=guess_r,
-                        joint=not args.no_joint)
-        brown5 = calibrate_stereo(pairs.points_left, pairs.points_right, board, pairs.image_size, lens="brown5",
-                                  **settings)
-        comparison = compare_lens_models(pairs.points_left, pairs.points_right, board, pairs.image_size,
-                                         brown4=cal, brown5=brown5, **settings)
-        cal = brown5
-    json_text, yaml_text = _calibration_texts(cal, pairs)
+    board = board_points_mm(args.pattern, args.square_mm)
+    settings = dict(tilt_guess_left_deg=args.tilt_guess_deg, tilt_guess_right_deg=guess_r, joint=not args.no_joint)
+    comparison = selection = None
+    extra = {}
+    if "auto" in (model, lens):
+        from measurement.calibration import images
+        from measurement.calibration.model_selection import select_model
+
+        pairs = images.detect_pairs(left, right, args.pattern, refine=args.refine_corners)
+        selection = select_model(pairs.points_left, pairs.points_right, board, pairs.image_size,
+                                 candidates=_auto_candidates(model, lens), folds=args.folds,
+                                 progress=lambda text: print(f"  fitting {text}", flush=True), **settings)
+        cal = selection.calibration
+        extra["model_selection"] = selection.to_dict()
+    else:
+        lens = canonical_lens(lens)
+        cal, pairs = calibrate_from_files(left, right, square_mm=args.square_mm, pattern_size=args.pattern,
+                                          model=model, refine_corners=args.refine_corners,
+                                          lens="brown4" if lens == "brown5" else lens, **settings)
+        if lens == "brown5":
+            # the four-term fit above is the reference of the comparison; the five-term one is what is written
+            from measurement.calibration.stepwise import compare_lens_models
+
+            brown5 = calibrate_stereo(pairs.points_left, pairs.points_right, board, pairs.image_size, lens="brown5",
+                                      model=model, **settings)
+            comparison = compare_lens_models(pairs.points_left, pairs.points_right, board, pairs.image_size,
+                                             brown4=cal, brown5=brown5, model=model, **settings)
+            cal = brown5
+            extra["lens_comparison"] = comparison
+    from measurement.calibration.model_selection import significance_lines, term_significance
+
+    extra["significance"] = {"rule": "z = |value| / sigma of each term beyond the pinhole camera with k1 k2 p1 p2; "
+                                     "z < 3: not determined by the data", **term_significance(cal)}
+    json_text, yaml_text = _calibration_texts(cal, pairs, extra)
     write_texts_together({args.out: json_text, yaml_out: yaml_text})       # both files or neither
-    lens = "" if args.lens == "brown4" else f" (lens {args.lens})"
-    print(f"calibrated {args.model}{lens} from {len(pairs.left_files)} stereo views ({len(pairs.dropped)} images "
+    lens_text = "" if cal.lens == "brown4" else f" (lens {cal.lens})"
+    print(f"calibrated {cal.model}{lens_text} from {len(pairs.left_files)} stereo views ({len(pairs.dropped)} images "
           f"dropped)")
-    names = ("fx", "fy", "cx", "cy", "alpha_deg", "beta_deg", "k1", "k2") + (("k3",) if args.lens == "brown5" else ()) \
-        + ("p1", "p2")
     for side in ("left", "right"):
         c = getattr(cal, side)
-        params = ", ".join(f"{n}={getattr(c.camera, n):.5g}±{c.sigma[n]:.2g}" for n in names)
+        params = ", ".join(f"{n}={getattr(c.camera, n):.5g}±{c.sigma.get(n, 0.0):.2g}" for n in _parameter_names(cal.lens))
         print(f"  {side}: reprojection RMS {c.rms_px:.4f} px; {params}")
+    if selection is not None:
+        print("\n".join(selection.lines()))
     if comparison is not None:
         from measurement.calibration.stepwise import lens_comparison_lines
         print("\n".join(lens_comparison_lines(comparison)))
+    lines, warns = significance_lines(cal)
+    if lines:
+        print("  terms beyond the pinhole camera with k1 k2 p1 p2 (value ± sigma, z = |value| / sigma):")
+        print("\n".join(lines))
+    for w in warns:
+        print(f"warning: {w}", file=sys.stderr)
     print(f"  stereo T = {np.round(cal.T_right_from_left_mm, 4).tolist()} mm; wrote {args.out} and {yaml_out}")
     return 0
 
@@ -866,7 +1041,7 @@ def _budget(args) -> int:
 
 
 _SUFFIX_FORMAT = {".json": "json", ".yaml": "opencv", ".yml": "opencv", ".xml": "opencv", ".cal": "vic3d",
-                  ".caldat": "matchid"}
+                  ".caldat": "matchid", ".mat": "matlab"}
 
 
 def _calibration_convert(args) -> int:
@@ -875,7 +1050,8 @@ def _calibration_convert(args) -> int:
 
     fmt = args.to or _SUFFIX_FORMAT.get(args.target.suffix.lower())
     if fmt is None:
-        raise ValueError(f"{args.target}: say the target format with --to (json, opencv, dice, vic3d, matchid); "
+        raise ValueError(f"{args.target}: say the target format with --to (json, opencv, dice, vic3d, matchid) or "
+                         f"--to matlab; "
                          f"the suffix {args.target.suffix or '(none)'} does not")
     if args.target.resolve() == args.source.resolve():
         raise ValueError(f"{args.target}: the target is the source file")

@@ -53,24 +53,29 @@ def n_intrinsics(model: str, lens: str) -> int:
     return len(_free_intrinsics(model, canonical_lens(lens)))
 
 
-def term_significance(cal: StereoCalibration) -> dict:
-    """``{side: {term: {"value", "sigma", "z"}}}`` for every optional term of ``cal``'s model and lens."""
-    out = {}
-    for side in ("left", "right"):
-        c = getattr(cal, side)
-        rows = {}
-        for term in optional_terms(cal.model, cal.lens):
-            value, sigma = float(getattr(c.camera, term)), float(c.sigma.get(term, np.nan))
-            rows[term] = {"value": value, "sigma": sigma,
-                          "z": abs(value) / sigma if sigma > 0 else float("nan")}
-        out[side] = rows
-    return out
+def _camera_terms(c: CameraCalibration, model: str) -> dict:
+    rows = {}
+    for term in optional_terms(model, c.lens):
+        value, sigma = float(getattr(c.camera, term)), float(c.sigma.get(term, np.nan))
+        rows[term] = {"value": value, "sigma": sigma, "z": abs(value) / sigma if sigma > 0 else float("nan")}
+    return rows
 
 
-def significance_lines(cal: StereoCalibration, z_threshold: float = Z_THRESHOLD) -> tuple[list[str], list[str]]:
+def term_significance(cal: StereoCalibration | CameraCalibration, model: str | None = None) -> dict:
+    """``{side: {term: {"value", "sigma", "z"}}}`` for every optional term of ``cal``'s model and lens; a single
+    camera's calibration (give its ``model``) has the one side ``"camera"``."""
+    if isinstance(cal, CameraCalibration):
+        if model is None:
+            raise ValueError("a single camera's calibration does not record its model: give model=")
+        return {"camera": _camera_terms(cal, model)}
+    return {side: _camera_terms(getattr(cal, side), cal.model) for side in ("left", "right")}
+
+
+def significance_lines(cal: StereoCalibration | CameraCalibration, z_threshold: float = Z_THRESHOLD,
+                       model: str | None = None) -> tuple[list[str], list[str]]:
     """(report lines, warnings) for :func:`term_significance` of ``cal``: one line per camera; a warning per camera
     whose tilt or optional lens terms the data do not determine (z < ``z_threshold``)."""
-    sig = term_significance(cal)
+    sig = term_significance(cal, model)
     lines, warns = [], []
     for side, rows in sig.items():
         if not rows:
@@ -79,9 +84,9 @@ def significance_lines(cal: StereoCalibration, z_threshold: float = Z_THRESHOLD)
         lines.append(f"  {side}: " + "; ".join(parts))
         weak = [t for t, r in rows.items() if not r["z"] >= z_threshold]
         if weak:
-            warns.append(f"{side} camera: {', '.join(weak)} below {z_threshold:g} σ: the data do not determine "
-                         f"{'them' if len(weak) > 1 else 'it'}; a simpler model (--model pinhole, --lens brown4) or "
-                         f"--model auto may describe this camera as well")
+            warns.append(f"{side}{'' if side == 'camera' else ' camera'}: {', '.join(weak)} below {z_threshold:g} σ: "
+                         f"the data do not determine {'them' if len(weak) > 1 else 'it'}; a simpler model "
+                         f"(--model pinhole, --lens k1k2p1p2) or --model auto may describe this camera as well")
     return lines, warns
 
 
@@ -204,6 +209,35 @@ class ModelSelection:
         return out
 
 
+def one_standard_error_choice(candidates, errors: dict):
+    """The simplest of ``candidates`` (ordered simplest first) whose held-out MSE is within one standard error of
+    the lowest; ``errors[c]``: (V, 2) per-view squared-residual sums and point counts (:func:`cross_validate`).
+
+    Returns ``(chosen, best, mse, se)``: ``mse[c]`` the mean over views of each view's mean squared error (px^2),
+    ``se[c]`` the standard error of the per-view difference to ``best`` (0 for ``best`` itself)."""
+    per_view = {c: errors[c][:, 0] / np.maximum(errors[c][:, 1], 1) for c in candidates}
+    mse = {c: float(np.mean(v)) for c, v in per_view.items()}
+    best = min(candidates, key=lambda c: mse[c])
+    n = len(per_view[best])
+    se = {c: float(np.std(per_view[c] - per_view[best], ddof=1) / np.sqrt(n)) if c != best else 0.0
+          for c in candidates}
+    chosen = next(c for c in candidates if mse[c] - mse[best] <= se[c])
+    return chosen, best, mse, se
+
+
+def select_camera_model(points: np.ndarray, board_mm: np.ndarray, image_size, *, candidates=DEFAULT_CANDIDATES,
+                        folds: int = DEFAULT_FOLDS, tilt_guess_deg=(0.0, 0.0)) -> tuple[tuple[str, str], list[dict]]:
+    """:func:`select_model` for one camera (its own views only): ``((model, lens), rows)``, a row per candidate
+    (simplest first) with ``model``, ``lens``, ``n_intrinsics``, ``held_out_mse_px2``, ``se_px2``, ``chosen``."""
+    cands = sorted(((m, canonical_lens(ln)) for m, ln in candidates), key=lambda c: n_intrinsics(*c))
+    errors = {c: cross_validate(points, board_mm, image_size, model=c[0], lens=c[1], folds=folds,
+                                tilt_guess_deg=tilt_guess_deg) for c in cands}
+    chosen, _, mse, se = one_standard_error_choice(cands, errors)
+    rows = [{"model": c[0], "lens": c[1], "n_intrinsics": n_intrinsics(*c), "held_out_mse_px2": mse[c],
+             "se_px2": se[c], "chosen": c == chosen} for c in cands]
+    return chosen, rows
+
+
 def _bic(cal: StereoCalibration, n_points: dict) -> float:
     n = 2 * (n_points["left"] + n_points["right"])
     ssr = sum(cal.rms_px[s] ** 2 * n_points[s] for s in ("left", "right"))
@@ -248,17 +282,13 @@ def select_model(points_left: np.ndarray, points_right: np.ndarray, board_mm: np
             e += cross_validate(pts, board_mm, image_size, model=model, lens=lens, folds=folds,
                                 tilt_guess_deg=guess, name=f"{side} camera")
         errors[model, lens] = e
-    per_view = {c: e[:, 0] / np.maximum(e[:, 1], 1) for c, e in errors.items()}     # mean squared error per view
-    mse = {c: float(np.mean(v)) for c, v in per_view.items()}
-    best = min(cands, key=lambda c: mse[c])
-    se = {c: float(np.std(per_view[c] - per_view[best], ddof=1) / np.sqrt(V)) if c != best else 0.0 for c in cands}
+    chosen, best, mse, se = one_standard_error_choice(cands, errors)
     scores = {}
     for c in cands:
         e = errors[c]
         scores[c] = CandidateScore(c[0], c[1], n_intrinsics(*c), dict(fits[c].rms_px),
                                    float(np.sqrt(e[:, 0].sum() / e[:, 1].sum())), mse[c], se[c],
                                    _bic(fits[c], n_points), term_significance(fits[c]))
-    chosen = next(c for c in cands if mse[c] - mse[best] <= se[c])
     if chosen == best:
         reason = f"the lowest held-out error ({mse[best]:.5f} px²)"
     else:

@@ -37,18 +37,25 @@ class BoardView:
 
 
 def board_outline_mm(board: Checkerboard) -> np.ndarray:
-    """Outer corners of the checkered area (without the white margin), board frame, (4, 3)."""
+    """Outer corners of the checkered area (without the white margin), board frame, (4, 3); a target with its
+    own ``outline_board_mm()`` (e.g. :class:`scenes.targets.DotGrid`) gives that."""
+    if hasattr(board, "outline_board_mm"):
+        return np.asarray(board.outline_board_mm(), dtype=float)
     x0, x1, y0, y1 = board.extent_board_mm()
     m = board.margin_squares * board.square_mm
     return np.array([[x0 + m, y0 + m, 0], [x1 - m, y0 + m, 0], [x1 - m, y1 - m, 0], [x0 + m, y1 - m, 0]])
 
 
 def camera_to_sensor_spec(camera: ScheimpflugCamera, pixel_pitch_mm: float = 0.00345, **lens) -> SensorSpec:
-    """The renderer's description of a camera (same Table 1 names); the renderer builds the paper's RMM."""
+    """The renderer's description of a camera (same Table 1 names, and the camera's k3 and thin prism s1-s4 unless
+    ``lens`` gives them); the renderer builds the paper's RMM and has no skew, so a camera with one is refused."""
     if camera.tilt_model != "rmm":
         raise ValueError(f"the renderer implements the paper's RMM tilt, not {camera.tilt_model!r}")
+    if camera.skew != 0.0:
+        raise ValueError(f"the renderer has no skew term; this camera has skew = {camera.skew:g} px")
+    terms = {n: float(getattr(camera, n)) for n in ("k3", "s1", "s2", "s3", "s4") if getattr(camera, n) != 0.0}
     return SensorSpec(**camera.intrinsics(), width=camera.width, height=camera.height,
-                      pixel_pitch_mm=pixel_pitch_mm, **lens)
+                      pixel_pitch_mm=pixel_pitch_mm, **{**terms, **lens})
 
 
 def sensor_spec_for(rig: StereoRig, side: str, **lens) -> SensorSpec:
