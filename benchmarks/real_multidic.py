@@ -7,8 +7,9 @@ Apache License 2.0). Nothing here is MultiDIC's code; only its images and its 2-
 Steps (each prints its progress and time):
 
 1. Intrinsics of each camera from its own 25 checkerboard images (not simultaneous pairs): corners by
-   :func:`measurement.calibration.detection.detect_checkerboard` on a copy shrunk by ``--detect-scale`` (8 MP at full
-   size takes ~8 s an image), mapped back and refined at full size with ``cv2.cornerSubPix``; cached in
+   :func:`measurement.calibration.detection.detect_checkerboard`, which searches a copy shrunk to
+   ``--detect-max-side`` px (8 MP at full size takes ~8 s an image) and refines the corners at full size (saddle
+   points); cached in
    ``corners_<cam>.npz`` in the output folder. Then :func:`measurement.calibration.stepwise.calibrate_camera` (model
    ``pinhole``, lens ``brown5`` by default: MultiDIC's STEP0 default is 3 radial + 2 tangential terms + skew).
    Our corners are compared with MultiDIC's own (``cameraCBparameters_cam_<cam>.mat``: ``imagePoints``, MATLAB
@@ -33,8 +34,8 @@ Steps (each prints its progress and time):
 5. (default, ``--no-checks`` skips it) sensitivity: the same 2-D matches re-triangulated with the other lens model,
    the plain 1-based reading of the centroids (C - 1) and our own blob centroids.
 6. (``--states``) the deformed states 2-5 through :func:`measurement.stereo_dic.measure_state`: counts, radius.
-7. (``--cli``) the reference and states through ``workbench stereo`` (no POI mask there: the mask's bounding box,
-   points filtered by the mask afterwards), in a temporary folder.
+7. (``--cli``) the reference and states through ``workbench stereo --mask`` (the ROI mask as a PNG), in a
+   temporary folder.
 
     scripts/fetch_multidic.sh --mirror /work/.mirror/MultiDIC+MultiDIC/repo      # or without --mirror: download
     .venv/bin/python benchmarks/real_multidic.py --data data/multidic --out reports/real_multidic --states --cli
@@ -55,6 +56,8 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
+
+from measurement.calibration.detection import DETECT_MAX_SIDE_PX  # noqa: E402  (after the path set-up)
 
 CAMERAS = ("201", "202")               # left, right (MultiDIC's pair C_201_C_202)
 PATTERN = (19, 14)                     # inner corners (columns, rows): MultiDIC's boardSize [15 20] squares
@@ -92,31 +95,17 @@ def source_line(data: Path) -> str:
 # --------------------------------------------------------------------------------------------------------
 # Step 1: intrinsics
 # --------------------------------------------------------------------------------------------------------
-def detect_corners(path: Path, scale: float) -> np.ndarray | None:
-    """Ordered inner corners of one checkerboard image, (N, 2) px (0-based pixel centres), or ``None``.
-
-    Detection runs on a copy shrunk by ``scale`` (INTER_AREA); corners are mapped back by
-    ``u + 0.5 = (u_small + 0.5) / scale`` and refined by ``cv2.cornerSubPix`` on the full-size grey image.
-    """
+def detect_corners(path: Path, max_side_px: int) -> np.ndarray | None:
+    """Ordered inner corners of one checkerboard image, (N, 2) px (0-based pixel centres), or ``None``: the
+    instrument's own :func:`~measurement.calibration.detection.detect_checkerboard`, which searches a copy shrunk to
+    ``max_side_px`` and refines the corners at full size (saddle points)."""
     from measurement.calibration.detection import detect_checkerboard
     from measurement.image_io import read_grey
 
-    grey = read_grey(path)
-    grey8 = grey if grey.dtype == np.uint8 else cv2.normalize(grey, None, 0, 255, cv2.NORM_MINMAX, cv2.CV_8U)
-    small = cv2.resize(grey8, None, fx=scale, fy=scale, interpolation=cv2.INTER_AREA) if scale != 1 else grey8
-    corners = detect_checkerboard(small, PATTERN)
-    if corners is None:
-        return None
-    full = (corners + 0.5) / scale - 0.5
-    nx = PATTERN[0]
-    spacing = float(np.median(np.linalg.norm(np.diff(full.reshape(-1, nx, 2), axis=1), axis=2)))
-    half = int(np.clip(0.3 * spacing, 5, 25))
-    crit = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 100, 1e-4)
-    refined = cv2.cornerSubPix(grey8, full.astype(np.float32).reshape(-1, 1, 2), (half, half), (-1, -1), crit)
-    return refined.reshape(-1, 2).astype(float)
+    return detect_checkerboard(read_grey(path), PATTERN, max_side_px=max_side_px)
 
 
-def corners_for_camera(data: Path, out: Path, cam: str, scale: float):
+def corners_for_camera(data: Path, out: Path, cam: str, max_side_px: int):
     """Corners of every checkerboard image of ``cam``: (names, (V, N, 2) px, image size), cached in the out folder."""
     cache = out / f"corners_{cam}.npz"
     files = sorted((data / "BAcheckerboardImages" / cam).glob("*.jpg"))
@@ -125,14 +114,14 @@ def corners_for_camera(data: Path, out: Path, cam: str, scale: float):
     names = [f.name for f in files]
     if cache.is_file():
         z = np.load(cache, allow_pickle=False)
-        if list(z["names"]) == names and float(z["scale"]) == scale:
+        if list(z["names"]) == names and "max_side_px" in z and int(z["max_side_px"]) == max_side_px:
             log(f"  camera {cam}: corners from cache {cache.name} ({int(z['found'].sum())}/{len(names)} boards)")
             return [n for n, f in zip(names, z["found"]) if f], z["points"], tuple(int(s) for s in z["size"])
     pts, found = [], []
     size = None
     for f in files:
         t = time.time()
-        c = detect_corners(f, scale)
+        c = detect_corners(f, max_side_px)
         if size is None:
             h, w = cv2.imread(str(f), cv2.IMREAD_GRAYSCALE).shape
             size = (w, h)
@@ -141,7 +130,8 @@ def corners_for_camera(data: Path, out: Path, cam: str, scale: float):
             pts.append(c)
         log(f"  camera {cam}: {f.name} {'found' if c is not None else 'NOT found'} ({time.time() - t:.1f} s)")
     points = np.array(pts)
-    np.savez(cache, names=np.array(names), found=np.array(found), points=points, size=np.array(size), scale=scale)
+    np.savez(cache, names=np.array(names), found=np.array(found), points=points, size=np.array(size),
+             max_side_px=max_side_px)
     return [n for n, f in zip(names, found) if f], points, size
 
 
@@ -221,7 +211,7 @@ def multidic_intrinsics(data: Path, cam: str) -> dict | None:
     return out
 
 
-def intrinsics(data: Path, out: Path, scale: float, lens: str):
+def intrinsics(data: Path, out: Path, max_side_px: int, lens: str):
     """Step 1 for both cameras: {cam: CameraCalibration}, report lines."""
     from measurement.calibration.detection import board_points_mm
     from measurement.calibration.stepwise import calibrate_camera
@@ -230,7 +220,7 @@ def intrinsics(data: Path, out: Path, scale: float, lens: str):
     cals, lines = {}, []
     for cam in CAMERAS:
         t = time.time()
-        names, pts, size = corners_for_camera(data, out, cam, scale)
+        names, pts, size = corners_for_camera(data, out, cam, max_side_px)
         t_det = time.time() - t
         t = time.time()
         cal = calibrate_camera(pts, board, size, model="pinhole", lens=lens, name=f"camera {cam}")
@@ -556,7 +546,7 @@ def residual_png(path: Path, x, y, r_mm, title: str, size) -> None:
     atomic_write_bytes(path, buf.getvalue())
 
 
-def sensitivity(data: Path, out: Path, shape, rig, scale: float, lens: str) -> list[str]:
+def sensitivity(data: Path, out: Path, shape, rig, max_side_px: int, lens: str) -> list[str]:
     """The reference's 2-D matches re-triangulated with other calibrations: the other lens model, the other reading
     of MultiDIC's centroids, our own blob centroids. Radius and the fraction triangulated of each."""
     from measurement.calibration.detection import board_points_mm
@@ -571,7 +561,7 @@ def sensitivity(data: Path, out: Path, shape, rig, scale: float, lens: str) -> l
     board = board_points_mm(PATTERN, SQUARE_MM)
     cams_other = {}
     for cam in CAMERAS:
-        names, pts, size = corners_for_camera(data, out, cam, scale)
+        names, pts, size = corners_for_camera(data, out, cam, max_side_px)
         cams_other[cam] = calibrate_camera(pts, board, size, model="pinhole", lens=other, name=f"camera {cam}").camera
     ours = {CAMERAS[0]: rig.left, CAMERAS[1]: rig.right}
     variants = [(f"as above ({lens}, MultiDIC centroids - 2/3)", ours, "multidic"),
@@ -637,25 +627,25 @@ def read_state_csv(path: Path) -> dict:
 
 
 def cli_check(data: Path, out: Path, subset: int, step: int, order: int, min_zncc: float) -> list[str]:
-    """The same measurement through the CLI (``workbench stereo``, our calibration.json): it has no POI mask, so it
-    runs on the ROI mask's bounding box and its points are filtered by the mask afterwards. Its output folder is
-    temporary (only the counts are reported)."""
+    """The same measurement through the CLI (``workbench stereo``, our calibration.json, MultiDIC's ROI mask written
+    as a PNG for ``--mask``). Its output folder is temporary (only the counts are reported)."""
     mask = roi_mask(data)
-    ys, xs = np.nonzero(mask)
-    roi = f"{xs.min()},{ys.min()},{xs.max() + 1},{ys.max() + 1}"
     import tempfile
 
     sp = data / "speckledObjectImages"
     tmp = tempfile.TemporaryDirectory(prefix="real_multidic_cli_")      # ~14 MB of CSV/VTK at step 10: not kept
     folder = Path(tmp.name) / "cli"
+    mask_png = Path(tmp.name) / "roi_mask.png"
+    cv2.imwrite(str(mask_png), mask.astype(np.uint8) * 255)
     cmd = [sys.executable, "-m", "workbench.cli", "stereo", "--calib", str(out / "calibration.json"),
            "--left-ref", str(sp / CAMERAS[0] / f"{CAMERAS[0]}_1.jpg"),
            "--right-ref", str(sp / CAMERAS[1] / f"{CAMERAS[1]}_1.jpg"),
            "--left", str(sp / CAMERAS[0] / f"{CAMERAS[0]}_[2-5].jpg"),
            "--right", str(sp / CAMERAS[1] / f"{CAMERAS[1]}_[2-5].jpg"),
-           "--roi", roi, "--subset", str(subset), "--step", str(step), "--order", str(order),
+           "--mask", str(mask_png), "--subset", str(subset), "--step", str(step), "--order", str(order),
            "--min-zncc", str(min_zncc), "--out", str(folder), "--overwrite"]
-    shown = " ".join(f"'{c}'" if "[" in c else c for c in ["workbench"] + cmd[3:-3] + ["--out", "OUT"])
+    shown = " ".join(f"'{c}'" if "[" in c else c for c in ["workbench"] + cmd[3:-3] + ["--out", "OUT"]).replace(
+        str(mask_png), "roi_mask.png")
     log(f"  run: {shown}")
     t = time.time()
     r = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True)
@@ -674,7 +664,7 @@ def cli_check(data: Path, out: Path, subset: int, step: int, order: int, min_znc
         bn, bc = np.unique(c["name"][c["status"] != 0], return_counts=True)
         cyl = fit_cylinder(c["X"][ok]) if ok.sum() > 10 else None
         box_failed = dict(zip(bn.tolist(), bc.tolist())) or "none"
-        lines.append(f"{name}: {c['x'].size} points in the box (not measured: {box_failed}), "
+        lines.append(f"{name}: {c['x'].size} points (not measured: {box_failed}), "
                      f"{inside.sum()} inside the mask; converged and "
                      f"triangulated {ok.sum()} ({ok.sum() / max(inside.sum(), 1):.2%}); others "
                      f"{dict(zip(names.tolist(), n.tolist())) or 'none'}"
@@ -687,14 +677,14 @@ def cli_check(data: Path, out: Path, subset: int, step: int, order: int, min_znc
 
 
 def measure(data: Path, out: Path, *, step: int = 10, subset: int = 41, order: int = 2, min_zncc: float = 0.8,
-            detect_scale: float = 0.25, lens: str = "brown5", states: bool = False, checks: bool = True,
+            detect_max_side_px: int = DETECT_MAX_SIDE_PX, lens: str = "brown5", states: bool = False, checks: bool = True,
             cli: bool = False) -> dict:
     """Run steps 1-4; returns the figures (and the report lines under ``lines``)."""
     out.mkdir(parents=True, exist_ok=True)
     times, lines = {}, []
     t = time.time()
     log("step 1: intrinsics from each camera's checkerboards")
-    cals, l1 = intrinsics(data, out, detect_scale, lens)
+    cals, l1 = intrinsics(data, out, detect_max_side_px, lens)
     times["1 intrinsics"] = time.time() - t
     t = time.time()
     log("step 2: extrinsics from the calibration object")
@@ -720,7 +710,7 @@ def measure(data: Path, out: Path, *, step: int = 10, subset: int = 41, order: i
     if checks:
         t = time.time()
         log("step 5: sensitivity of the radius to the calibration (same 2-D matches, re-triangulated)")
-        lines["step 5 sensitivity"] = sensitivity(data, out, shape, rig, detect_scale, lens)
+        lines["step 5 sensitivity"] = sensitivity(data, out, shape, rig, detect_max_side_px, lens)
         times["5 sensitivity"] = time.time() - t
     if states:
         t = time.time()
@@ -752,19 +742,20 @@ def main(argv=None) -> int:
     ap.add_argument("--subset", type=int, default=41, help="subset size, px (odd, default 41)")
     ap.add_argument("--order", type=int, choices=(1, 2), default=2)
     ap.add_argument("--min-zncc", type=float, default=0.8)
-    ap.add_argument("--detect-scale", type=float, default=0.25,
-                    help="checkerboard detection on a copy shrunk by this, refined at full size (default 0.25)")
+    ap.add_argument("--detect-max-side", type=int, default=DETECT_MAX_SIDE_PX,
+                    help="checkerboard search on a copy shrunk to this long side, refined at full size (default "
+                         f"{DETECT_MAX_SIDE_PX}, the instrument's)")
     ap.add_argument("--lens", choices=("brown4", "brown5"), default="brown5")
     ap.add_argument("--states", action="store_true", help="also measure the deformed states 2-5")
     ap.add_argument("--cli", action="store_true",
-                    help="also run the reference and states through `workbench stereo` (bounding box, mask after)")
+                    help="also run the reference and states through `workbench stereo --mask`")
     ap.add_argument("--no-checks", action="store_true", help="skip the calibration sensitivity checks (step 5)")
     args = ap.parse_args(argv)
     if not (args.data / "speckledObjectImages").is_dir():
         raise SystemExit(f"{args.data}: not a MultiDIC sample-data folder (run scripts/fetch_multidic.sh)")
     t0 = time.time()
     r = measure(args.data, args.out, step=args.step, subset=args.subset, order=args.order, min_zncc=args.min_zncc,
-                detect_scale=args.detect_scale, lens=args.lens, states=args.states, checks=not args.no_checks,
+                detect_max_side_px=args.detect_max_side, lens=args.lens, states=args.states, checks=not args.no_checks,
                 cli=args.cli)
     total = time.time() - t0
     try:

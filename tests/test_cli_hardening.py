@@ -106,6 +106,30 @@ def test_stereo_writes_residual_statistics_per_state_and_a_manifest(stereo, tmp_
     assert main(_stereo_args(stereo, out, extra=["--overwrite"])) == 0
 
 
+def test_stereo_mask_keeps_only_the_points_it_covers(stereo, tmp_path, capsys):
+    """``--mask``: a mask covering the left half of the ROI gives exactly the grid points of that half (computed here
+    from the ROI and step), with the same 3-D results as the unmasked run at those points; a mask of another size
+    is refused naming both sizes."""
+    from workbench.results import read_result
+
+    ref = cv2.imread(str(stereo / "left_ref.png"), cv2.IMREAD_GRAYSCALE)
+    mask = np.zeros_like(ref)
+    mask[:, :300] = 255
+    cv2.imwrite(str(tmp_path / "mask.png"), mask)
+    full, half = tmp_path / "full", tmp_path / "half"
+    assert main(_stereo_args(stereo, full)) == 0
+    assert main(_stereo_args(stereo, half, extra=("--mask", str(tmp_path / "mask.png")))) == 0
+    a, b = read_result(full / "reference.csv"), read_result(half / "reference.csv")
+    assert b.x_px.size > 0 and np.all(b.x_px < 300)
+    assert b.x_px.size == np.count_nonzero(a.x_px < 300)
+    ia = np.flatnonzero(a.x_px < 300)
+    np.testing.assert_allclose(b.X_mm, a.X_mm[ia], atol=1e-9)
+    assert json.loads((half / MANIFEST_NAME).read_text())["settings"]["mask"] == str(tmp_path / "mask.png")
+    cv2.imwrite(str(tmp_path / "small.png"), mask[:100, :100])
+    assert main(_stereo_args(stereo, tmp_path / "bad", extra=("--mask", str(tmp_path / "small.png")))) == 2
+    assert "is 100 x 100 px but the left reference is" in capsys.readouterr().err
+
+
 def test_swapped_reference_images_are_refused_with_the_likely_cause(stereo, tmp_path, capsys):
     """Swapped left/right references used to give a median residual of ~1.5-2 px, D = 91 mm and exit 0."""
     out = tmp_path / "out"

@@ -445,6 +445,8 @@ def _parser() -> argparse.ArgumentParser:
     st.add_argument("--left", required=True, help="glob of left deformed images (sorted; paired with --right)")
     st.add_argument("--right", required=True, help="glob of right deformed images")
     st.add_argument("--roi", type=_roi, default=None, help="rectangle of points on the left reference X0,Y0,X1,Y1")
+    st.add_argument("--mask", type=Path, default=None,
+                    help="image (the left reference's size) whose non-zero pixels may hold points of interest")
     st.add_argument("--subset", type=_subset, default=65, help="subset size (odd, px), default 65")
     st.add_argument("--step", type=_positive_int, default=5, help="grid step (px), default 5")
     st.add_argument("--order", type=int, choices=(1, 2), default=2)
@@ -643,7 +645,13 @@ def _stereo(args) -> int:
     for fl, fr in zip(left_files, right_files):
         _check_against_calibration(_read_image(fl, "left image"), rig.left, f"left image {fl}")
         _check_against_calibration(_read_image(fr, "right image"), rig.right, f"right image {fr}")
-    _poi_grid(left_ref, args, what="left reference image")
+    mask = None
+    if args.mask is not None:
+        mask_image = _read_image(args.mask, "--mask")
+        if mask_image.shape[:2] != left_ref.shape[:2]:
+            raise ValueError(f"--mask {args.mask} is {_size(mask_image)} but the left reference is {_size(left_ref)}")
+        mask = mask_image != 0 if mask_image.ndim == 2 else np.any(mask_image != 0, axis=-1)
+    _poi_grid(left_ref, args, mask, what="left reference image")
     auto_roi = _auto_roi(args)
     settings = DICSettings(subset_size=args.subset, step=args.step, order=args.order, min_zncc=args.min_zncc)
     names = [f"state_{k:03d}" for k in range(len(left_files))]
@@ -655,7 +663,7 @@ def _stereo(args) -> int:
 
     try:
         shape = reference_shape(rig.left, rig.right, rig.R_right_from_left, rig.T_right_from_left_mm, left_ref,
-                                right_ref, settings, roi=args.roi, auto_roi=auto_roi, **thresholds)
+                                right_ref, settings, roi=args.roi, mask=mask, auto_roi=auto_roi, **thresholds)
     except StereoQualityError as err:
         raise ValueError(f"{err}{hint}") from None
     prepare_folder(args.out, "stereo", planned, overwrite=args.overwrite)
@@ -696,7 +704,8 @@ def _stereo(args) -> int:
     written.append(write_state_summary(args.out / "summary.csv", rows).name)
     complete_folder(args.out, "stereo", written,
                     {"calib": str(args.calib), "left_ref": str(args.left_ref), "right_ref": str(args.right_ref),
-                     "left": args.left, "right": args.right, "roi": args.roi, "subset": args.subset,
+                     "left": args.left, "right": args.right, "roi": args.roi,
+                     "mask": None if args.mask is None else str(args.mask), "subset": args.subset,
                      "step": args.step, "order": args.order, "min_zncc": args.min_zncc, **thresholds,
                      "auto_roi": None if auto_roi is None else vars(auto_roi) | {"noise_sigma_used_grey":
                                                                                   shape.noise_sigma_grey},
