@@ -23,7 +23,7 @@ Steps (each prints its progress and time):
    the targets' true 3-D coordinates (``C3Dtrue(:, columns, :)``, MATLAB column-major order), by ``cv2.solvePnP``
    refined with our own projection model; the stereo pose right-from-left follows. The centroid convention is
    checked against centroids we measure on the image (binary blob centroids, as MultiDIC's ``regionprops``).
-   Written as ``calibration.json`` (our format, :func:`measurement.calibration.io.save_rig`).
+   Written as ``calibration.json`` (our format, :func:`measurement.calibration.io.save_rig`) and its OpenCV YAML.
 3. Stereo DIC of the reference pair (201_1 / 202_1) with :func:`measurement.stereo_dic.reference_shape` and
    MultiDIC's ROI mask (``ROIMask_C_201_C_202.mat``, left image = camera 201) as POI mask. Counted: points whose
    left->right match converged, of those how many are triangulated, the reasons of the others.
@@ -401,7 +401,8 @@ def extrinsics(data: Path, out: Path, cals: dict, lens: str):
                                "cameras": {"left": CAMERAS[0], "right": CAMERAS[1]},
                                "object_to_left": {"R": R1.tolist(), "t_mm": t1.tolist()}})
     rig = load_calibration(path)
-    lines.append(f"wrote {path}")
+    save_rig(rig, path.with_suffix(".yaml"))              # the OpenCV YAML twin, as workbench calibrate writes
+    lines.append(f"wrote {path} and {path.with_suffix('.yaml').name}")
     return rig, (R1, t1), lines
 
 
