@@ -828,6 +828,18 @@ def _calibration_check(args) -> tuple[str, str]:
     return args.model, args.lens
 
 
+def _print_significance(cal, model: str | None = None) -> None:
+    """Each optional term's value / sigma on stdout; the terms the data do not determine as warnings on stderr."""
+    from measurement.calibration.model_selection import significance_lines
+
+    lines, warns = significance_lines(cal, model=model)
+    if lines:
+        print("  terms beyond the pinhole camera with k1 k2 p1 p2 (value ± sigma, z = |value| / sigma):")
+        print("\n".join(lines))
+    for w in warns:
+        print(f"warning: {w}", file=sys.stderr)
+
+
 def _calibrate_one_camera(args) -> int:
     """``workbench calibrate --camera GLOB``: steps 1-4 (and the final refinement) of one camera."""
     import warnings
@@ -835,7 +847,7 @@ def _calibrate_one_camera(args) -> int:
     from measurement.calibration.detection import board_points_mm
     from measurement.calibration.images import MIN_VIEWS, detect_views
     from measurement.calibration.io import opencv_camera_yaml_text, save_camera_calibration
-    from measurement.calibration.model_selection import select_camera_model, significance_lines, term_significance
+    from measurement.calibration.model_selection import select_camera_model, term_significance
     from measurement.calibration.stepwise import calibrate_camera
     from workbench.manifest import write_texts_together
 
@@ -880,12 +892,7 @@ def _calibrate_one_camera(args) -> int:
     params = ", ".join(f"{n}={getattr(cal.camera, n):.5g}±{cal.sigma.get(n, 0.0):.2g}" for n in _parameter_names(lens)
                        if not (model == "pinhole" and n in ("alpha_deg", "beta_deg")))
     print(f"  reprojection RMS {cal.rms_px:.4f} px; {params}")
-    lines, warns = significance_lines(cal, model=model)
-    if lines:
-        print("  terms beyond the pinhole camera with k1 k2 p1 p2 (value ± sigma, z = |value| / sigma):")
-        print("\n".join(lines))
-    for w in warns:
-        print(f"warning: {w}", file=sys.stderr)
+    _print_significance(cal, model)
     print(f"  wrote {args.out} and {yaml_out}")
     return 0
 
@@ -946,7 +953,7 @@ def _calibrate(args) -> int:
                                              brown4=cal, brown5=brown5, model=model, **settings)
             cal = brown5
             extra["lens_comparison"] = comparison
-    from measurement.calibration.model_selection import significance_lines, term_significance
+    from measurement.calibration.model_selection import term_significance
 
     extra["significance"] = {"rule": "z = |value| / sigma of each term beyond the pinhole camera with k1 k2 p1 p2; "
                                      "z < 3: not determined by the data", **term_significance(cal)}
@@ -964,12 +971,7 @@ def _calibrate(args) -> int:
     if comparison is not None:
         from measurement.calibration.stepwise import lens_comparison_lines
         print("\n".join(lens_comparison_lines(comparison)))
-    lines, warns = significance_lines(cal)
-    if lines:
-        print("  terms beyond the pinhole camera with k1 k2 p1 p2 (value ± sigma, z = |value| / sigma):")
-        print("\n".join(lines))
-    for w in warns:
-        print(f"warning: {w}", file=sys.stderr)
+    _print_significance(cal)
     print(f"  stereo T = {np.round(cal.T_right_from_left_mm, 4).tolist()} mm; wrote {args.out} and {yaml_out}")
     return 0
 

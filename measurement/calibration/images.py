@@ -16,6 +16,19 @@ from measurement.image_io import read_grey
 MIN_VIEWS = 3
 
 
+def _read_and_detect(path: str, size: list, pattern_size, refine: bool) -> np.ndarray | None:
+    """Read one image, check it has the size of the first one (``size``: [] or [(width, height, file)], filled by
+    the first call) and detect its board (saddle-refined with ``refine``)."""
+    img = read_grey(path)
+    if not size:
+        size.append((img.shape[1], img.shape[0], path))
+    elif (img.shape[1], img.shape[0]) != size[0][:2]:
+        raise CalibrationError(f"image {path} is {img.shape[1]} x {img.shape[0]} px but {size[0][2]} is "
+                               f"{size[0][0]} x {size[0][1]} px: all images must have one size")
+    corners = detect_checkerboard(img, pattern_size)
+    return corners if corners is None or not refine else refine_corners_saddle(img, corners, pattern_size)
+
+
 @dataclass
 class DetectedPairs:
     """Corners found in both images of each usable pair."""
@@ -41,22 +54,10 @@ def detect_pairs(left_files, right_files, pattern_size=(11, 8), progress: bool =
         raise CalibrationError("no left images given (check the --left pattern)")
     if len(left_files) != len(right_files):
         raise CalibrationError(f"{len(left_files)} left images but {len(right_files)} right images: they must pair up")
-    size = None
+    size = []
     pts_l, pts_r, used_l, used_r, dropped = [], [], [], [], []
     for fl, fr in tqdm(list(zip(left_files, right_files)), desc="detecting boards", disable=not progress):
-        images = []
-        for f in (fl, fr):
-            img = read_grey(f)
-            if size is None:
-                size = (img.shape[1], img.shape[0], f)
-            elif (img.shape[1], img.shape[0]) != size[:2]:
-                raise CalibrationError(f"image {f} is {img.shape[1]} x {img.shape[0]} px but {size[2]} is "
-                                       f"{size[0]} x {size[1]} px: all images must have one size")
-            images.append(img)
-        corners = [detect_checkerboard(img, pattern_size) for img in images]
-        if refine:
-            corners = [None if c is None else refine_corners_saddle(img, c, pattern_size)
-                       for img, c in zip(images, corners)]
+        corners = [_read_and_detect(f, size, pattern_size, refine) for f in (fl, fr)]
         missing = [f for f, c in zip((fl, fr), corners) if c is None]
         if missing:
             warnings.warn(f"board not found in {', '.join(missing)}: dropping the pair ({Path(fl).name}, "
@@ -71,7 +72,7 @@ def detect_pairs(left_files, right_files, pattern_size=(11, 8), progress: bool =
         raise CalibrationError(f"only {len(pts_l)} of {len(left_files)} stereo pairs show the "
                                f"{pattern_size[0]} x {pattern_size[1]}-corner board in both images; at least "
                                f"{min_views} are needed (check --pattern and the images)")
-    return DetectedPairs(used_l, used_r, np.array(pts_l), np.array(pts_r), size[:2], dropped)
+    return DetectedPairs(used_l, used_r, np.array(pts_l), np.array(pts_r), size[0][:2], dropped)
 
 
 def calibrate_from_files(left_files, right_files, *, square_mm: float, pattern_size=(11, 8), model: str = "rmm",
@@ -104,18 +105,10 @@ def detect_views(files, pattern_size=(11, 8), progress: bool = True, refine: boo
     files = [str(f) for f in files]
     if not files:
         raise CalibrationError("no images given (check the --camera pattern)")
-    size = None
+    size = []
     points, used, dropped = [], [], []
     for f in tqdm(files, desc="detecting boards", disable=not progress):
-        img = read_grey(f)
-        if size is None:
-            size = (img.shape[1], img.shape[0], f)
-        elif (img.shape[1], img.shape[0]) != size[:2]:
-            raise CalibrationError(f"image {f} is {img.shape[1]} x {img.shape[0]} px but {size[2]} is "
-                                   f"{size[0]} x {size[1]} px: all images must have one size")
-        corners = detect_checkerboard(img, pattern_size)
-        if corners is not None and refine:
-            corners = refine_corners_saddle(img, corners, pattern_size)
+        corners = _read_and_detect(f, size, pattern_size, refine)
         if corners is None:
             warnings.warn(f"board not found in {f}: dropping it", stacklevel=2)
             dropped.append(f)
@@ -126,4 +119,4 @@ def detect_views(files, pattern_size=(11, 8), progress: bool = True, refine: boo
         raise CalibrationError(f"only {len(points)} of {len(files)} images show the {pattern_size[0]} x "
                                f"{pattern_size[1]}-corner board; at least {min_views} are needed (check --pattern "
                                "and the images)")
-    return DetectedViews(used, np.array(points), size[:2], dropped)
+    return DetectedViews(used, np.array(points), size[0][:2], dropped)

@@ -480,6 +480,25 @@ def _plain_distortion(node: Node, K: np.ndarray, size: tuple[int, int]) -> np.nd
     return full14
 
 
+def _plain_camera_values(k_node: Node, d_node: Node, size: tuple[int, int]) -> dict[str, float]:
+    """The camera parameters of an OpenCV camera matrix and distortion vector, range-checked (the error names the
+    node that gives a bad value)."""
+    K = _opencv_matrix(k_node, (3, 3))
+    if not (np.allclose(K[1, 0], 0) and np.allclose(K[2], [0, 0, 1])):
+        raise k_node.error(f"is not a camera matrix [[fx, s, cx], [0, fy, cy], [0, 0, 1]]: {K.tolist()}")
+    d = _plain_distortion(d_node, K, size)
+    values = {"fx": K[0, 0], "fy": K[1, 1], "cx": K[0, 2], "cy": K[1, 2],
+              "alpha_deg": float(np.rad2deg(d[12])), "beta_deg": float(np.rad2deg(d[13])),
+              "k1": d[0], "k2": d[1], "p1": d[2], "p2": d[3], "k3": d[4], "skew": K[0, 1],
+              "s1": d[8], "s2": d[9], "s3": d[10], "s4": d[11]}
+    for key, v in values.items():
+        lo, hi = RANGES[key] if key in RANGES else EXTRA_RANGES[key]
+        if not (lo < v < hi) or (key in ("fx", "fy") and not v > 0):
+            node = k_node if key in ("fx", "fy", "cx", "cy", "skew") else d_node
+            raise node.error(f"gives {key} = {v:g}, outside ({lo:g}, {hi:g})")
+    return {k: float(v) for k, v in values.items()}
+
+
 def _rig_from_plain_opencv(doc: Node, path) -> CalibratedRig:
     """A stereo calibration as OpenCV programs write it: K1 D1 K2 D2 R T and the image size; a pinhole rig, or an
     ``opencv-tilt`` one when a distortion vector has tau_x/tau_y. K[0][1] is the skew. T is taken in mm (the unit of
@@ -487,22 +506,8 @@ def _rig_from_plain_opencv(doc: Node, path) -> CalibratedRig:
     size = _plain_size(doc)
     found = {}
     for n, name in ((1, "left"), (2, "right")):
-        k_node = _first_key(doc, _PLAIN_K, n, "camera matrix")
-        K = _opencv_matrix(k_node, (3, 3))
-        if not (np.allclose(K[1, 0], 0) and np.allclose(K[2], [0, 0, 1])):
-            raise k_node.error(f"is not a camera matrix [[fx, s, cx], [0, fy, cy], [0, 0, 1]]: {K.tolist()}")
-        d_node = _first_key(doc, _PLAIN_D, n, "distortion vector")
-        d = _plain_distortion(d_node, K, size)
-        values = {"fx": K[0, 0], "fy": K[1, 1], "cx": K[0, 2], "cy": K[1, 2],
-                  "alpha_deg": float(np.rad2deg(d[12])), "beta_deg": float(np.rad2deg(d[13])),
-                  "k1": d[0], "k2": d[1], "p1": d[2], "p2": d[3], "k3": d[4], "skew": K[0, 1],
-                  "s1": d[8], "s2": d[9], "s3": d[10], "s4": d[11]}
-        for key, v in values.items():
-            lo, hi = RANGES[key] if key in RANGES else EXTRA_RANGES[key]
-            if not (lo < v < hi) or (key in ("fx", "fy") and not v > 0):
-                node = k_node if key in ("fx", "fy", "cx", "cy", "skew") else d_node
-                raise node.error(f"gives {key} = {v:g}, outside ({lo:g}, {hi:g})")
-        found[name] = {k: float(v) for k, v in values.items()}
+        found[name] = _plain_camera_values(_first_key(doc, _PLAIN_K, n, "camera matrix"),
+                                           _first_key(doc, _PLAIN_D, n, "distortion vector"), size)
     # one model for the rig: OpenCV's tilted model if either camera has a tilt (tau = 0 is the pinhole then)
     tilted = any(v["alpha_deg"] != 0.0 or v["beta_deg"] != 0.0 for v in found.values())
     model, tilt_model = ("opencv-tilt", "opencv") if tilted else ("pinhole", "rmm")
@@ -658,23 +663,11 @@ def _camera_from_opencv_text(text: str, path) -> ScheimpflugCamera:
         model = "pinhole" if values["alpha_deg"] == values["beta_deg"] == 0.0 else \
             ("opencv-tilt" if tilt_model == "opencv" else "rmm")
         return _camera(values, size[0], size[1], tilt_model, model, doc, lambda n: n)
-    k_node = _one_of(doc, ("camera_matrix", "cameraMatrix", "K"), "camera matrix")
-    K = _opencv_matrix(k_node, (3, 3))
-    if not (np.allclose(K[1, 0], 0) and np.allclose(K[2], [0, 0, 1])):
-        raise k_node.error(f"is not a camera matrix [[fx, s, cx], [0, fy, cy], [0, 0, 1]]: {K.tolist()}")
-    d_node = _one_of(doc, ("distortion_coefficients", "distCoeffs", "D"), "distortion vector")
-    d = _plain_distortion(d_node, K, size)
-    values = {"fx": K[0, 0], "fy": K[1, 1], "cx": K[0, 2], "cy": K[1, 2],
-              "alpha_deg": float(np.rad2deg(d[12])), "beta_deg": float(np.rad2deg(d[13])),
-              "k1": d[0], "k2": d[1], "p1": d[2], "p2": d[3], "k3": d[4], "skew": K[0, 1],
-              "s1": d[8], "s2": d[9], "s3": d[10], "s4": d[11]}
-    for key, v in values.items():
-        lo, hi = RANGES[key] if key in RANGES else EXTRA_RANGES[key]
-        if not (lo < v < hi):
-            raise (k_node if key in ("fx", "fy", "cx", "cy", "skew") else d_node).error(
-                f"gives {key} = {v:g}, outside ({lo:g}, {hi:g})")
+    values = _plain_camera_values(_one_of(doc, ("camera_matrix", "cameraMatrix", "K"), "camera matrix"),
+                                  _one_of(doc, ("distortion_coefficients", "distCoeffs", "D"), "distortion vector"),
+                                  size)
     tilted = values["alpha_deg"] != 0.0 or values["beta_deg"] != 0.0
-    return ScheimpflugCamera(**{k: float(v) for k, v in values.items()}, width=size[0], height=size[1],
+    return ScheimpflugCamera(**values, width=size[0], height=size[1],
                              tilt_model="opencv" if tilted else "rmm")
 
 
