@@ -1,4 +1,8 @@
-"""Calibration targets: the paper's printed checkerboard as an exact, textured plane, with optional imperfections.
+"""Calibration targets: the paper's printed checkerboard as an exact, textured plane, with optional imperfections;
+ChArUco boards (:class:`CharucoBoard`, a checkerboard with ArUco markers in its white squares, same truth
+corners and imperfections) and symmetric dot grids (:class:`DotGrid`, truth points at the dot centres, exact
+polygon mesh). All three offer what the renderer uses: ``surface(R, t)``, ``board_mesh()``, ``texture()``,
+``radiance_at``/``is_dark``, ``corners_board_mm()``/``true_corners_board_mm()`` and ``extent_board_mm()``.
 
 Board frame (mm): origin at the first inner corner, x along a row of corners, y along a column, z into the
 board (a camera looking at the printed face sees it along +z, as OpenCV's calibration object). Each square
@@ -28,6 +32,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from functools import lru_cache
 
 import numpy as np
 
@@ -253,13 +258,14 @@ class Checkerboard:
     def printed_grid_sheet_mm(self) -> np.ndarray:
         """Where the printer put every square corner, on the flat sheet, shape (rows + 1, cols + 1, 2), mm.
 
-        ``rows, cols`` count the squares including the margin (``texture().shape``); entry ``[i, j]`` is the
-        corner between squares ``(i-1, j-1)`` and ``(i, j)``, nominally at ``(x_min + j s, y_min + i s)``.
+        ``rows, cols`` count the squares including the margin (a :class:`Checkerboard`'s ``texture().shape``);
+        entry ``[i, j]`` is the corner between squares ``(i-1, j-1)`` and ``(i, j)``, nominally at
+        ``(x_min + j s, y_min + i s)``.
         Flat sheet coordinates share the board frame's axes and origin (they are the board frame of the
         unbent sheet).
         """
         x0, _, y0, _ = self.extent_board_mm()
-        rows, cols = self.texture().shape
+        rows, cols = self.squares[1] + 2 * self.margin_squares, self.squares[0] + 2 * self.margin_squares
         X, Y = np.meshgrid(x0 + np.arange(cols + 1) * self.square_mm, y0 + np.arange(rows + 1) * self.square_mm)
         grid = np.stack([X, Y], axis=-1) * (1.0 + self.print_scale_error)
         if self.corner_noise_mm > 0:
@@ -373,8 +379,9 @@ class Checkerboard:
         -------
         vertices_mm : (V, 3) float, board frame, mm; ``(n + 1)^2`` per square, n = :meth:`subdivisions`
         faces : (F, 3) int, ``2 n^2`` per square, face normals toward -z_board (the printed side)
-        uv : (V, 2) float, constant per square: the centre of its texel in ``texture``
-        texture : (1, 2) float32, radiance ``[[dark, light]]``
+        uv : (V, 2) float, constant per square: the centre of its texel in ``texture`` (a :class:`CharucoBoard`:
+            the square's block of its full texture, interpolated over the patch)
+        texture : (1, 2) float32, radiance ``[[dark, light]]`` (a :class:`CharucoBoard`: :meth:`texture`)
 
         Squares are patches of their own (no shared vertices) so that each can have one colour; vertices on
         a shared edge are copies of the same bent point, so the mesh is watertight.
@@ -388,14 +395,23 @@ class Checkerboard:
         ii = np.arange(rows)[:, None, None, None] * n + a[None, None, :, None]
         jj = np.arange(cols)[None, :, None, None] * n + a[None, None, None, :]
         verts = fine[ii, jj].reshape(-1, 3)
-        # Colour of each square from the nominal pattern at its nominal centre.
+        uv, texture = self._square_patch_uv(rows, cols, n)
+        faces = _grid_faces(n)[None] + (np.arange(rows * cols) * (n + 1) ** 2)[:, None, None]
+        return verts, faces.reshape(-1, 3), uv, texture
+
+    def _square_patch_uv(self, rows: int, cols: int, n: int) -> tuple[np.ndarray, np.ndarray]:
+        """Texture coordinates of the mesh's square patches and the texture they point into.
+
+        Returns ``uv`` of shape (rows * cols * (n + 1)^2, 2), in the vertex order of :meth:`board_mesh` (square
+        by square, row by row; inside a square its (n + 1) x (n + 1) block, x fastest), and the texture. Here:
+        one colour per square, from the nominal pattern at its nominal centre, into a (1, 2) [dark, light]
+        texture.
+        """
         x0, _, y0, _ = self.extent_board_mm()
         xc, yc = np.meshgrid(x0 + (np.arange(cols) + 0.5) * self.square_mm, y0 + (np.arange(rows) + 0.5) * self.square_mm)
         dark = self.is_dark(xc, yc).ravel()
         uv = np.repeat(np.where(dark[:, None], _DARK_UV, _LIGHT_UV), (n + 1) ** 2, axis=0)
-        faces = _grid_faces(n)[None] + (np.arange(rows * cols) * (n + 1) ** 2)[:, None, None]
-        texture = np.array([[self.dark, self.light]], dtype=np.float32)
-        return verts, faces.reshape(-1, 3), uv, texture
+        return uv, np.array([[self.dark, self.light]], dtype=np.float32)
 
 
 def _refine(grid: np.ndarray, n: int) -> np.ndarray:
@@ -426,3 +442,396 @@ def _grid_faces(n: int) -> np.ndarray:
     v00 = (i * (n + 1) + j).ravel()
     v10, v01, v11 = v00 + 1, v00 + n + 1, v00 + n + 2
     return np.concatenate([np.stack([v00, v11, v10], axis=1), np.stack([v00, v01, v11], axis=1)])
+
+
+# ------------------------------------------------------------------------------------------------------------
+# ChArUco board
+#: Largest side of a ChArUco print's texture, texels: bounds the search for a texel on which every marker edge
+#: falls (:attr:`CharucoBoard.texels_per_square`).
+_MAX_TEXTURE_SIDE = 8192
+
+
+def _aruco_dictionary(name: str):
+    """OpenCV's predefined ArUco dictionary ``cv2.aruco.<name>``, or ValueError naming ``dictionary``.
+
+    Only the dictionary's bit patterns (data) come from OpenCV; the board's geometry is built here.
+    """
+    import cv2
+
+    if not (isinstance(name, str) and name.startswith("DICT_") and isinstance(getattr(cv2.aruco, name, None), int)):
+        known = ", ".join(sorted(n for n in dir(cv2.aruco) if n.startswith("DICT_")))
+        raise ValueError(f"dictionary must name one of OpenCV's predefined ArUco dictionaries ({known}), got {name!r}")
+    return cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, name))
+
+
+@lru_cache(maxsize=16)
+def _marker_cells(name: str, count: int) -> np.ndarray:
+    """Black cells of markers 0..count-1 of dictionary ``name``, with their one-cell black border,
+    shape (count, b + 2, b + 2) bool, row 0 at the top of the printed marker (b: the dictionary's bits per side)."""
+    d = _aruco_dictionary(name)
+    side = d.markerSize + 2
+    return np.stack([d.generateImageMarker(k, side, borderBits=1) < 128 for k in range(count)])
+
+
+@dataclass(frozen=True)
+class CharucoBoard(Checkerboard):
+    """A printed ChArUco board: a checkerboard whose white squares hold ArUco markers (OpenCV's layout).
+
+    Everything about the checkerboard is :class:`Checkerboard`'s (board frame, ``squares``, ``square_mm``, the
+    white margin, ``dark``/``light``, and all imperfections: print scale, bow, corner noise, which move a
+    square's marker with it); the truth points are the same inner corners, :meth:`true_corners_board_mm`, in
+    the same order, which is also the order of OpenCV's ChArUco corner ids (row by row from the top-left
+    inner corner, x fastest).
+
+    Layout (OpenCV >= 4.6 ``cv::aruco::CharucoBoard``, non-legacy pattern): square ``(row i, column j)`` of the
+    checkered area (``i, j`` from 0 at the top left, x right, y down as the print is seen) is black when
+    ``i + j`` is even, so the top-left square is black, as :class:`Checkerboard`'s; every white square holds
+    a marker, centred, ``marker_mm`` wide, with ids 0, 1, ... in row-major order of the white squares, i.e.
+    ``id = (i * columns + j) // 2``. A marker is the dictionary's ``b x b`` bit cells inside a one-cell black
+    border, so its ``(b + 2)`` cells are ``marker_mm / (b + 2)`` wide. Only the bit patterns come from OpenCV
+    (:func:`cv2.aruco.getPredefinedDictionary`); the geometry is built here.
+
+    Parameters (in addition to :class:`Checkerboard`'s)
+    ----------------------------------------------------
+    marker_mm : float, mm
+        Side of one marker including its black border, ``0 < marker_mm < square_mm``.
+    dictionary : str
+        Name of an OpenCV predefined dictionary, e.g. ``"DICT_4X4_50"``, ``"DICT_5X5_100"``; it must hold at
+        least one marker per white square (``columns * rows // 2``; 54 for 12 x 9 squares).
+
+    The print is a nearest-neighbour texture of :attr:`texels_per_square` texels per square: square edges
+    (hence the truth corners) are exact, and so is every marker edge when :attr:`markers_on_texels` (the
+    texel is chosen so, e.g. 8 texels for ``marker_mm = 0.75 square_mm`` with 4 x 4 bits); otherwise marker
+    edges are rounded to the nearest texel (at most ``square_mm / (2 texels_per_square)``), which moves no
+    corner.
+    """
+
+    marker_mm: float = 3.75
+    dictionary: str = "DICT_4X4_100"
+
+    def __post_init__(self):
+        super().__post_init__()
+        marker = _finite("marker_mm", self.marker_mm)
+        if not 0 < marker < self.square_mm:
+            raise ValueError(f"marker_mm must satisfy 0 < marker_mm < square_mm ({self.square_mm:g} mm), got {marker}")
+        size = len(_aruco_dictionary(self.dictionary).bytesList)
+        if self.marker_count > size:
+            raise ValueError(f"dictionary {self.dictionary} holds {size} markers, a board of {self.squares[0]} x "
+                             f"{self.squares[1]} squares needs {self.marker_count}")
+
+    @property
+    def marker_count(self) -> int:
+        """Number of markers, one per white square: ``columns * rows // 2``."""
+        return self.squares[0] * self.squares[1] // 2
+
+    @property
+    def marker_bits(self) -> int:
+        """Bit cells per marker side, without the border (4 for ``DICT_4X4_*``)."""
+        return int(_aruco_dictionary(self.dictionary).markerSize)
+
+    def _marker_layout(self) -> tuple[float, float]:
+        """(offset, cell) of a marker inside its square, both as fractions of ``square_mm``."""
+        ratio = self.marker_mm / self.square_mm
+        return 0.5 * (1.0 - ratio), ratio / (self.marker_bits + 2)
+
+    @property
+    def _sheet_squares(self) -> tuple[int, int]:
+        """(rows, cols) of squares on the sheet including the margin."""
+        return self.squares[1] + 2 * self.margin_squares, self.squares[0] + 2 * self.margin_squares
+
+    @property
+    def texels_per_square(self) -> int:
+        """Texels per square edge: the smallest n on which every marker edge falls on a texel edge (to 1e-9 of
+        a texel), searched up to a texture side of 8192 texels; that largest n if none does."""
+        offset, cell = self._marker_layout()
+        n_max = max(1, _MAX_TEXTURE_SIDE // max(self._sheet_squares))
+        for n in range(1, n_max + 1):
+            if abs(n * offset - round(n * offset)) < 1e-9 and abs(n * cell - round(n * cell)) < 1e-9:
+                return n
+        return n_max
+
+    @property
+    def markers_on_texels(self) -> bool:
+        """True when every marker edge of the texture is exact (see :attr:`texels_per_square`)."""
+        offset, cell = self._marker_layout()
+        n = self.texels_per_square
+        return abs(n * offset - round(n * offset)) < 1e-9 and abs(n * cell - round(n * cell)) < 1e-9
+
+    def _dark_texels(self) -> np.ndarray:
+        """Black texels of the nominal print, shape (rows * n, cols * n) bool, row 0 at y_min (n texels/square)."""
+        n = self.texels_per_square
+        rows, cols = self._sheet_squares
+        m = self.margin_squares
+        # Texel centres in units of squares, from the top-left corner of the checkered area.
+        ty = (np.arange(rows * n) + 0.5) / n - m
+        tx = (np.arange(cols * n) + 0.5) / n - m
+        i, j = np.floor(ty).astype(int), np.floor(tx).astype(int)
+        I, J = np.meshgrid(i, j, indexing="ij")
+        inside = (I >= 0) & (I < self.squares[1]) & (J >= 0) & (J < self.squares[0])
+        dark = inside & ((I + J) % 2 == 0)
+        offset, cell = self._marker_layout()
+        side = self.marker_bits + 2
+        cy, cx = np.floor((ty - i - offset) / cell).astype(int), np.floor((tx - j - offset) / cell).astype(int)
+        CY, CX = np.meshgrid(cy, cx, indexing="ij")
+        in_marker = inside & ((I + J) % 2 == 1) & (CY >= 0) & (CY < side) & (CX >= 0) & (CX < side)
+        ids = (I * self.squares[0] + J) // 2
+        cells = _marker_cells(self.dictionary, self.marker_count)
+        dark[in_marker] = cells[ids[in_marker], CY[in_marker], CX[in_marker]]
+        return dark
+
+    def texture(self) -> np.ndarray:
+        """Nominal print, :attr:`texels_per_square` texels per square including the margin, row 0 at y_min,
+        shape (rows n, cols n) float32, radiance."""
+        return np.where(self._dark_texels(), self.dark, self.light).astype(np.float32)
+
+    def is_dark(self, x_mm: np.ndarray, y_mm: np.ndarray) -> np.ndarray:
+        """True where nominal board point (x, y) is printed black (squares and marker cells; off the sheet: False)."""
+        x, y = np.asarray(x_mm, dtype=float), np.asarray(y_mm, dtype=float)
+        dark = self._dark_texels()
+        x0, _, y0, _ = self.extent_board_mm()
+        texel = self.square_mm / self.texels_per_square
+        ix, iy = np.floor((x - x0) / texel), np.floor((y - y0) / texel)
+        inside = (ix >= 0) & (ix < dark.shape[1]) & (iy >= 0) & (iy < dark.shape[0])
+        iy_c = np.clip(iy, 0, dark.shape[0] - 1).astype(int)
+        ix_c = np.clip(ix, 0, dark.shape[1] - 1).astype(int)
+        return inside & dark[iy_c, ix_c]
+
+    def _square_patch_uv(self, rows: int, cols: int, n: int) -> tuple[np.ndarray, np.ndarray]:
+        """uv of each square patch spanning that square's block of :meth:`texture`, so that the marker follows
+        its (printed, bent) square; vertex order of :meth:`Checkerboard.board_mesh`."""
+        a = np.arange(n + 1) / n
+        u = (np.arange(cols)[None, :, None, None] + a[None, None, None, :]) / cols
+        v = (np.arange(rows)[:, None, None, None] + a[None, None, :, None]) / rows
+        u, v = np.broadcast_arrays(u, v)
+        return np.stack([u.ravel(), v.ravel()], axis=1), self.texture()
+
+
+# ------------------------------------------------------------------------------------------------------------
+# Dot (circle) grid
+@dataclass(frozen=True)
+class DotGrid:
+    """A printed symmetric grid of round dots, perfect (flat, exact print); the truth points are the dot centres.
+
+    Board frame (mm): origin at the centre of the first dot, x along a row of dots, y along a column, z into
+    the board (as :class:`Checkerboard`). Dot ``k`` (row by row, x fastest) is centred at
+    ``(j pitch_mm, i pitch_mm, 0)``, ``k = i cols + j``.
+
+    Parameters
+    ----------
+    pattern_size : (cols, rows)
+        Dots per row and per column (OpenCV's ``patternSize``), each >= 2.
+    pitch_mm : float, mm
+        Centre-to-centre distance of neighbouring dots.
+    diameter_mm : float, mm
+        Dot diameter, ``0 < diameter_mm < pitch_mm`` (dots may not touch).
+    margin_pitches : int
+        Plain border around the grid, in pitches, beyond the half pitch around the outer dots (>= 0).
+    dark, light : float
+        Emitted radiance of the dark and the light print.
+    dark_dots : bool
+        True: dark dots on a light sheet (default); False: light dots on a dark sheet.
+    polygon_sides : int or None
+        Sides of the regular polygon that stands for each circle in the mesh; None: the smallest multiple
+        of 8 whose inscribed polygon stays within ``FACET_TOLERANCE_MM`` (0.05 µm) of the circle
+        (352 sides for a 2.5 mm dot). Any even count keeps the polygon's centroid on the true centre.
+
+    Rendering: :meth:`surface` is always a triangle mesh (:meth:`board_mesh`): the sheet is cut into one square
+    cell per pitch around every dot, each a fan (the dot) plus a ring of quads to the cell's edge, both colours
+    picked from a 2-texel nearest-filter texture, so every dot edge is mathematically sharp and the rendered
+    pixels are exact area integrals of the print (up to Monte-Carlo sampling).
+
+    Perspective eccentricity (why the truth is *not* the centre of the imaged ellipse)
+    ---------------------------------------------------------------------------------
+    The image of a circle under perspective is an ellipse (a conic) whose centre is *not* the image of the
+    circle's centre unless the board is parallel to the image plane (e.g. Heikkilä, 2000, IEEE TPAMI 22(10),
+    "Geometric camera calibration using circular control points"; Mallon & Whelan, 2007, Pattern Recognition
+    Letters 28(8)). A blob detector finds the centroid of the imaged dot; the truth of a dot is the
+    projection of its true 3-D centre (:meth:`true_corners_board_mm` projected by the truth camera). The
+    difference, the *eccentricity error*, is zero for a board parallel to the image plane and grows with the
+    tilt; its scale is ``f r^2 / Z^2`` px (f in px, dot radius r at distance Z): 0.03 px for the paper's rig
+    at quarter resolution and 2.5 mm dots, of which tilted views show ~0.005-0.025 px (measured in
+    ``tests/test_targets_charuco_dots.py``; 4x that at full resolution). It is a property of
+    the target, not of the renderer: use :meth:`dot_outlines_board_mm` to compute the imaged outlines and
+    their centroids, and report detection errors against both.
+    """
+
+    pattern_size: tuple[int, int] = (11, 8)
+    pitch_mm: float = 5.0
+    diameter_mm: float = 2.5
+    margin_pitches: int = 1
+    dark: float = 0.1
+    light: float = 0.9
+    dark_dots: bool = True
+    polygon_sides: int | None = None
+
+    def __post_init__(self):
+        size = self.pattern_size
+        if not (isinstance(size, tuple) and len(size) == 2 and all(_is_int(c) and c >= 2 for c in size)):
+            raise ValueError(f"pattern_size must be (cols, rows), integers >= 2, got {size!r}")
+        pitch = _finite("pitch_mm", self.pitch_mm)
+        if not pitch > 0:
+            raise ValueError(f"pitch_mm must be positive, got {pitch}")
+        d = _finite("diameter_mm", self.diameter_mm)
+        if not 0 < d < pitch:
+            raise ValueError(f"diameter_mm must satisfy 0 < diameter_mm < pitch_mm ({pitch:g} mm), got {d}")
+        if not (_is_int(self.margin_pitches) and self.margin_pitches >= 0):
+            raise ValueError(f"margin_pitches must be an integer >= 0, got {self.margin_pitches!r}")
+        _finite("dark", self.dark)
+        _finite("light", self.light)
+        if not isinstance(self.dark_dots, (bool, np.bool_)):
+            raise ValueError(f"dark_dots must be True or False, got {self.dark_dots!r}")
+        sides = self.polygon_sides
+        if sides is not None and not (_is_int(sides) and sides >= 8 and sides % 8 == 0):
+            raise ValueError(f"polygon_sides must be None or a multiple of 8 (>= 8), got {sides!r}")
+
+    # --------------------------------------------------------------------------------------------------------
+    # Geometry (nominal = true: the grid is perfect)
+    @property
+    def radius_mm(self) -> float:
+        return 0.5 * self.diameter_mm
+
+    @property
+    def inner_corners(self) -> tuple[int, int]:
+        """(cols, rows) of truth points, the name :class:`Checkerboard` uses for OpenCV's ``patternSize``."""
+        return self.pattern_size
+
+    @property
+    def is_perfect(self) -> bool:
+        """Always True: the dot grid has no imperfection model (yet)."""
+        return True
+
+    def corners_board_mm(self) -> np.ndarray:
+        """Nominal dot centres in the board frame, row by row (x fastest), shape (N, 3), mm."""
+        nx, ny = self.pattern_size
+        jj, ii = np.meshgrid(np.arange(nx), np.arange(ny))
+        return np.stack([jj.ravel() * self.pitch_mm, ii.ravel() * self.pitch_mm, np.zeros(nx * ny)], axis=1)
+
+    def true_corners_board_mm(self) -> np.ndarray:
+        """The true dot centres (the truth points), same order as :meth:`corners_board_mm`, (N, 3) mm."""
+        return self.corners_board_mm()
+
+    def dot_outlines_board_mm(self, points_per_dot: int = 256) -> np.ndarray:
+        """Points on every true circle, counter-clockwise from +x, shape (N, points_per_dot, 3), mm (z = 0)."""
+        if not (_is_int(points_per_dot) and points_per_dot >= 3):
+            raise ValueError(f"points_per_dot must be an integer >= 3, got {points_per_dot!r}")
+        t = 2.0 * np.pi * np.arange(points_per_dot) / points_per_dot
+        ring = self.radius_mm * np.stack([np.cos(t), np.sin(t), np.zeros_like(t)], axis=1)
+        return self.corners_board_mm()[:, None, :] + ring[None]
+
+    def extent_board_mm(self) -> tuple[float, float, float, float]:
+        """(x_min, x_max, y_min, y_max) of the printed sheet including the margin, mm."""
+        nx, ny = self.pattern_size
+        m = (0.5 + self.margin_pitches) * self.pitch_mm
+        return -m, (nx - 1) * self.pitch_mm + m, -m, (ny - 1) * self.pitch_mm + m
+
+    def outline_board_mm(self) -> np.ndarray:
+        """Corners of the dotted area (half a pitch around the outer dot centres), board frame, (4, 3) mm: the
+        outline that must stay in view (:func:`workbench.experiments.checkerboard_views.board_outline_mm`)."""
+        nx, ny = self.pattern_size
+        h = 0.5 * self.pitch_mm
+        x0, x1, y0, y1 = -h, (nx - 1) * self.pitch_mm + h, -h, (ny - 1) * self.pitch_mm + h
+        return np.array([[x0, y0, 0], [x1, y0, 0], [x1, y1, 0], [x0, y1, 0]], dtype=float)
+
+    def is_dark(self, x_mm: np.ndarray, y_mm: np.ndarray) -> np.ndarray:
+        """True where nominal board point (x, y) is printed dark (off the sheet: False)."""
+        x, y = np.asarray(x_mm, dtype=float), np.asarray(y_mm, dtype=float)
+        nx, ny = self.pattern_size
+        p = self.pitch_mm
+        j = np.clip(np.rint(x / p), 0, nx - 1)
+        i = np.clip(np.rint(y / p), 0, ny - 1)
+        in_dot = np.hypot(x - j * p, y - i * p) < self.radius_mm
+        x0, x1, y0, y1 = self.extent_board_mm()
+        on_sheet = (x >= x0) & (x < x1) & (y >= y0) & (y < y1)
+        return on_sheet & (in_dot if self.dark_dots else ~in_dot)
+
+    def radiance_at(self, x_mm: np.ndarray, y_mm: np.ndarray) -> np.ndarray:
+        """Nominal printed radiance at board points (off the sheet: 0, the black background)."""
+        x0, x1, y0, y1 = self.extent_board_mm()
+        on_sheet = (x_mm >= x0) & (x_mm < x1) & (y_mm >= y0) & (y_mm < y1)
+        return np.where(on_sheet, np.where(self.is_dark(x_mm, y_mm), self.dark, self.light), 0.0)
+
+    def texture(self, texels_per_pitch: int = 40, supersampling: int = 4) -> np.ndarray:
+        """A raster of the nominal print (each texel the mean radiance of ``supersampling^2`` sub-samples), row
+        0 at y_min, shape (rows, cols) float32: a preview and a 2-D image source. :meth:`surface` does not use
+        it (its dots are exact polygons, not texels)."""
+        if not (_is_int(texels_per_pitch) and texels_per_pitch >= 1 and _is_int(supersampling) and supersampling >= 1):
+            raise ValueError(f"texels_per_pitch and supersampling must be integers >= 1, got "
+                             f"{texels_per_pitch!r}, {supersampling!r}")
+        x0, x1, y0, y1 = self.extent_board_mm()
+        step = self.pitch_mm / (texels_per_pitch * supersampling)
+        xs = x0 + (np.arange(int(round((x1 - x0) / step))) + 0.5) * step
+        ys = y0 + (np.arange(int(round((y1 - y0) / step))) + 0.5) * step
+        X, Y = np.meshgrid(xs, ys)
+        fine = self.radiance_at(X, Y)
+        s = supersampling
+        return fine.reshape(len(ys) // s, s, len(xs) // s, s).mean(axis=(1, 3)).astype(np.float32)
+
+    # --------------------------------------------------------------------------------------------------------
+    # Rendering
+    def sides(self) -> int:
+        """Sides of each dot's polygon: ``polygon_sides`` or the smallest multiple of 8 with
+        ``r (1 - cos(pi / N)) <= FACET_TOLERANCE_MM`` (the inscribed polygon's largest gap to the circle)."""
+        if self.polygon_sides is not None:
+            return int(self.polygon_sides)
+        n = math.pi / math.acos(1.0 - FACET_TOLERANCE_MM / self.radius_mm)
+        return max(8, 8 * math.ceil(n / 8))
+
+    def board_mesh(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """The sheet as a triangle mesh in the board frame.
+
+        Returns
+        -------
+        vertices_mm : (V, 3) float, board frame, mm
+        faces : (F, 3) int, face normals toward -z_board (the printed side)
+        uv : (V, 2) float, the centre of the dark or the light texel of ``texture``
+        texture : (1, 2) float32, radiance ``[[dark, light]]``
+
+        Every cell (one pitch square around a dot, or a margin cell) is cut along the N rays from its centre at
+        angles ``2 pi k / N`` (N = :meth:`sides`, a multiple of 8, so the rays through the cell's corners are
+        among them): a dot cell is a fan of N triangles (the inscribed N-gon, dot colour) plus N quads from the
+        polygon to the cell's edge (sheet colour); a margin cell is one fan. Neighbouring cells put the same
+        vertices on their shared edge, so the mesh is watertight.
+        """
+        n_sides = self.sides()
+        nx, ny = self.pattern_size
+        m, p = self.margin_pitches, self.pitch_mm
+        theta = 2.0 * np.pi * np.arange(n_sides) / n_sides
+        direction = np.stack([np.cos(theta), np.sin(theta)], axis=1)
+        circle = self.radius_mm * direction
+        edge = 0.5 * p * direction / np.max(np.abs(direction), axis=1, keepdims=True)
+        k = np.arange(n_sides)
+        k1 = (k + 1) % n_sides
+        dot_uv, sheet_uv = (_DARK_UV, _LIGHT_UV) if self.dark_dots else (_LIGHT_UV, _DARK_UV)
+        # One dot cell, vertices: 0 centre, 1..N polygon (dot colour), N+1..2N polygon (sheet), 2N+1..3N edge.
+        dot_verts = np.concatenate([np.zeros((1, 2)), circle, circle, edge])
+        dot_uvs = np.array([dot_uv] * (n_sides + 1) + [sheet_uv] * (2 * n_sides))
+        inner, outer = 1 + n_sides + k, 1 + 2 * n_sides + k
+        dot_faces = np.concatenate([
+            np.stack([np.zeros_like(k), 1 + k1, 1 + k], axis=1),                       # the dot's fan
+            np.stack([inner, outer[k1], outer], axis=1),                                # the ring, two per quad
+            np.stack([inner, inner[k1], outer[k1]], axis=1)])
+        # One margin cell: centre and edge, a fan in the sheet colour.
+        empty_verts = np.concatenate([np.zeros((1, 2)), edge])
+        empty_uvs = np.array([sheet_uv] * (n_sides + 1))
+        empty_faces = np.stack([np.zeros_like(k), 1 + k1, 1 + k], axis=1)
+        verts, faces, uvs, count = [], [], [], 0
+        for i in range(-m, ny + m):
+            for j in range(-m, nx + m):
+                is_dot = 0 <= i < ny and 0 <= j < nx
+                v, f, u = (dot_verts, dot_faces, dot_uvs) if is_dot else (empty_verts, empty_faces, empty_uvs)
+                verts.append(v + [j * p, i * p])
+                faces.append(f + count)
+                uvs.append(u)
+                count += len(v)
+        verts = np.concatenate(verts)
+        verts = np.concatenate([verts, np.zeros((len(verts), 1))], axis=1)
+        texture = np.array([[self.dark, self.light]], dtype=np.float32)
+        return verts, np.concatenate(faces), np.concatenate(uvs).astype(float), texture
+
+    def surface(self, R_world_from_board: np.ndarray, t_world_from_board_mm: np.ndarray) -> TexturedSurface:
+        """The sheet as an emissive textured mesh placed in the world, ``X_world = R X_board + t``
+        (:meth:`board_mesh`; the ``uv`` truth channel of a render codes the colour, not a sheet position)."""
+        R = np.asarray(R_world_from_board, dtype=float)
+        t = np.asarray(t_world_from_board_mm, dtype=float).reshape(3)
+        verts, faces, uv, texture = self.board_mesh()
+        return TexturedSurface(vertices_mm=verts @ R.T + t, faces=faces, uv=uv, texture=texture, filter="nearest")

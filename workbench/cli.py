@@ -417,7 +417,17 @@ def _parser() -> argparse.ArgumentParser:
                      help="single-camera calibration of these images instead of a stereo pair (--left/--right); "
                           "writes a camera JSON (and an OpenCV YAML beside it)")
     cal.add_argument("--square-mm", type=_positive_float, default=5.0)
-    cal.add_argument("--pattern", type=_pattern, default=(11, 8), help="inner corners, COLSxROWS (default 11x8)")
+    cal.add_argument("--pattern", type=_pattern, default=(11, 8),
+                     help="inner corners, COLSxROWS (default 11x8); with --target dots: the dots, COLSxROWS")
+    cal.add_argument("--target", choices=("checkerboard", "charuco", "dots"), default="checkerboard",
+                     help="calibration target: checkerboard (default), charuco (--squares, --marker-mm, --dictionary; "
+                          "--square-mm the square) or dots (a symmetric dot grid: --pattern, --square-mm the pitch, "
+                          "--dot-mm)")
+    cal.add_argument("--squares", type=_pattern, default=None, help="ChArUco board squares, COLSxROWS")
+    cal.add_argument("--marker-mm", type=_positive_float, default=None, help="ChArUco marker side, mm")
+    cal.add_argument("--dictionary", default="DICT_4X4_50", help="ChArUco ArUco dictionary (default DICT_4X4_50)")
+    cal.add_argument("--dot-mm", type=_positive_float, default=None, help="dot diameter, mm (--target dots)")
+    cal.add_argument("--white-dots", action="store_true", help="light dots on a dark ground (--target dots)")
     cal.add_argument("--model", choices=("rmm", "opencv-tilt", "pinhole", "auto"), default="rmm",
                      help="camera model (default rmm, the paper's); auto: pinhole or rmm, whichever is the simplest "
                           "that held-out views support (and each candidate's tilt / sigma is printed)")
@@ -816,6 +826,30 @@ def _parameter_names(lens: str) -> tuple[str, ...]:
             + (("k3",) if "k3" in terms else ()) + ("p1", "p2") + tuple(t for t in terms if t.startswith("s")))
 
 
+def _calibration_target(args):
+    """The target spec of ``calibrate``'s options (None: the checkerboard of --pattern), checked."""
+    from measurement.calibration.targets import CharucoSpec, DotGridSpec
+
+    if args.target != "charuco" and (args.squares or args.marker_mm):
+        raise ValueError("--squares and --marker-mm describe a ChArUco board: add --target charuco")
+    if args.target != "dots" and (args.dot_mm or args.white_dots):
+        raise ValueError("--dot-mm and --white-dots describe a dot grid: add --target dots")
+    if args.target != "checkerboard" and args.refine_corners:
+        raise ValueError("--refine-corners refines checkerboard corners; it does not apply to --target "
+                         f"{args.target}")
+    if args.target == "charuco":
+        if args.squares is None or args.marker_mm is None:
+            raise ValueError("--target charuco needs --squares COLSxROWS and --marker-mm (and --square-mm)")
+        return CharucoSpec(squares=args.squares, square_mm=args.square_mm, marker_mm=args.marker_mm,
+                           dictionary=args.dictionary)
+    if args.target == "dots":
+        if args.dot_mm is None:
+            raise ValueError("--target dots needs --dot-mm (and --pattern COLSxROWS dots, --square-mm the pitch)")
+        return DotGridSpec(pattern_size=args.pattern, pitch_mm=args.square_mm, diameter_mm=args.dot_mm,
+                           dark_dots=not args.white_dots)
+    return None
+
+
 def _calibration_check(args) -> tuple[str, str]:
     """Options of ``calibrate`` checked before any board is detected; returns the (model, lens) as asked."""
     if args.camera is not None and (args.left is not None or args.right is not None):
@@ -825,6 +859,7 @@ def _calibration_check(args) -> tuple[str, str]:
     if args.out.suffix.lower() in (".yaml", ".yml", ".xml"):
         raise ValueError(f"--out {args.out} names the YAML export; give the calibration JSON (e.g. "
                          f"{args.out.with_suffix('.json')}): the .yaml is written beside it")
+    _calibration_target(args)
     return args.model, args.lens
 
 
@@ -844,8 +879,7 @@ def _calibrate_one_camera(args) -> int:
     """``workbench calibrate --camera GLOB``: steps 1-4 (and the final refinement) of one camera."""
     import warnings
 
-    from measurement.calibration.detection import board_points_mm
-    from measurement.calibration.images import MIN_VIEWS, detect_views
+    from measurement.calibration.images import MIN_VIEWS, detect_views, target_points_mm
     from measurement.calibration.io import opencv_camera_yaml_text, save_camera_calibration
     from measurement.calibration.model_selection import select_camera_model, term_significance
     from measurement.calibration.stepwise import calibrate_camera
@@ -857,8 +891,9 @@ def _calibrate_one_camera(args) -> int:
     yaml_out = args.out.with_suffix(".yaml")
     _output_file(args.out)
     _output_file(yaml_out, "the YAML export beside --out")
-    views = detect_views(files, args.pattern, refine=args.refine_corners)
-    board = board_points_mm(args.pattern, args.square_mm)
+    target = _calibration_target(args)
+    views = detect_views(files, args.pattern, refine=args.refine_corners, target=target)
+    board = target_points_mm(target, args.pattern, args.square_mm)
     candidates = _auto_candidates(args.model, args.lens)
     rows = []
     if len(candidates) > 1:
@@ -921,10 +956,11 @@ def _calibrate(args) -> int:
             raise ValueError(f"image {f} is {_size(image)} but {first[1]} is {first[0][1]} x {first[0][0]} px: all "
                              "images must have one size")
     guess_r = args.tilt_guess_right_deg or (args.tilt_guess_deg[0], -args.tilt_guess_deg[1])
-    from measurement.calibration.detection import board_points_mm
+    from measurement.calibration.images import target_points_mm
     from measurement.calibration.stepwise import calibrate_stereo, canonical_lens
 
-    board = board_points_mm(args.pattern, args.square_mm)
+    target = _calibration_target(args)
+    board = target_points_mm(target, args.pattern, args.square_mm)
     settings = dict(tilt_guess_left_deg=args.tilt_guess_deg, tilt_guess_right_deg=guess_r, joint=not args.no_joint)
     comparison = selection = None
     extra = {}
@@ -932,7 +968,7 @@ def _calibrate(args) -> int:
         from measurement.calibration import images
         from measurement.calibration.model_selection import select_model
 
-        pairs = images.detect_pairs(left, right, args.pattern, refine=args.refine_corners)
+        pairs = images.detect_pairs(left, right, args.pattern, refine=args.refine_corners, target=target)
         selection = select_model(pairs.points_left, pairs.points_right, board, pairs.image_size,
                                  candidates=_auto_candidates(model, lens), folds=args.folds,
                                  progress=lambda text: print(f"  fitting {text}", flush=True), **settings)
@@ -941,7 +977,7 @@ def _calibrate(args) -> int:
     else:
         lens = canonical_lens(lens)
         cal, pairs = calibrate_from_files(left, right, square_mm=args.square_mm, pattern_size=args.pattern,
-                                          model=model, refine_corners=args.refine_corners,
+                                          model=model, refine_corners=args.refine_corners, target=target,
                                           lens="brown4" if lens == "brown5" else lens, **settings)
         if lens == "brown5":
             # the four-term fit above is the reference of the comparison; the five-term one is what is written

@@ -9,22 +9,53 @@ import numpy as np
 from tqdm import tqdm
 
 from measurement.calibration.detection import board_points_mm, detect_checkerboard, refine_corners_saddle
-from measurement.calibration.stepwise import CalibrationError, StereoCalibration, calibrate_stereo
+from measurement.calibration.stepwise import (MIN_POINTS_PER_VIEW, CalibrationError, StereoCalibration,
+                                              calibrate_stereo)
+from measurement.calibration.targets import (CharucoSpec, DotGridSpec, charuco_points_mm, detect_charuco,
+                                             detect_dot_grid, dot_grid_points_mm)
 from measurement.image_io import read_grey
 
 #: Fewest stereo views the stepwise procedure accepts (Zhang's initialisation needs >= 3 homographies).
 MIN_VIEWS = 3
 
 
-def _read_and_detect(path: str, size: list, pattern_size, refine: bool) -> np.ndarray | None:
+def target_points_mm(target, pattern_size=(11, 8), square_mm: float = 5.0) -> np.ndarray:
+    """The board points (N, 3) mm of ``target``: a checkerboard's inner corners (``pattern_size``, ``square_mm``)
+    for ``None``, else a :class:`~measurement.calibration.targets.CharucoSpec` or
+    :class:`~measurement.calibration.targets.DotGridSpec`."""
+    if target is None:
+        return board_points_mm(pattern_size, square_mm)
+    if isinstance(target, CharucoSpec):
+        return charuco_points_mm(target)
+    if isinstance(target, DotGridSpec):
+        return dot_grid_points_mm(target)
+    raise TypeError(f"target must be None, a CharucoSpec or a DotGridSpec, got {type(target).__name__}")
+
+
+def _target_name(target, pattern_size) -> str:
+    if isinstance(target, CharucoSpec):
+        return f"{target.squares[0]} x {target.squares[1]}-square ChArUco board ({target.dictionary})"
+    if isinstance(target, DotGridSpec):
+        return f"{target.pattern_size[0]} x {target.pattern_size[1]} dot grid"
+    return f"{pattern_size[0]} x {pattern_size[1]}-corner board"
+
+
+def _read_and_detect(path: str, size: list, pattern_size, refine: bool, target=None) -> np.ndarray | None:
     """Read one image, check it has the size of the first one (``size``: [] or [(width, height, file)], filled by
-    the first call) and detect its board (saddle-refined with ``refine``)."""
+    the first call) and detect its board: a checkerboard of ``pattern_size`` (saddle-refined with ``refine``) for
+    ``target=None``, else the ChArUco board or dot grid of the spec. A ChArUco view with fewer than
+    :data:`~measurement.calibration.stepwise.MIN_POINTS_PER_VIEW` corners counts as not found."""
     img = read_grey(path)
     if not size:
         size.append((img.shape[1], img.shape[0], path))
     elif (img.shape[1], img.shape[0]) != size[0][:2]:
         raise CalibrationError(f"image {path} is {img.shape[1]} x {img.shape[0]} px but {size[0][2]} is "
                                f"{size[0][0]} x {size[0][1]} px: all images must have one size")
+    if isinstance(target, CharucoSpec):
+        corners = detect_charuco(img, target)
+        return corners if np.all(np.isfinite(corners), axis=1).sum() >= MIN_POINTS_PER_VIEW else None
+    if isinstance(target, DotGridSpec):
+        return detect_dot_grid(img, target)
     corners = detect_checkerboard(img, pattern_size)
     return corners if corners is None or not refine else refine_corners_saddle(img, corners, pattern_size)
 
@@ -42,12 +73,13 @@ class DetectedPairs:
 
 
 def detect_pairs(left_files, right_files, pattern_size=(11, 8), progress: bool = True,
-                 refine: bool = False, min_views: int = MIN_VIEWS) -> DetectedPairs:
+                 refine: bool = False, min_views: int = MIN_VIEWS, target=None) -> DetectedPairs:
     """Detect the board in every left/right pair (paired in the given order).
 
     ``refine``: also fit a blurred saddle model around every corner (:func:`refine_corners_saddle`; ~3x lower
     corner error than OpenCV's on full-resolution renders, ~5 s per 5 MP image). ``min_views``: fewest usable
-    pairs accepted (calibration needs 3; validation sets may be smaller).
+    pairs accepted (calibration needs 3; validation sets may be smaller). ``target``: a ChArUco or dot-grid spec
+    instead of the checkerboard of ``pattern_size`` (ChArUco corners not seen are NaN rows).
     """
     left_files, right_files = [str(f) for f in left_files], [str(f) for f in right_files]
     if not left_files:
@@ -57,7 +89,7 @@ def detect_pairs(left_files, right_files, pattern_size=(11, 8), progress: bool =
     size = []
     pts_l, pts_r, used_l, used_r, dropped = [], [], [], [], []
     for fl, fr in tqdm(list(zip(left_files, right_files)), desc="detecting boards", disable=not progress):
-        corners = [_read_and_detect(f, size, pattern_size, refine) for f in (fl, fr)]
+        corners = [_read_and_detect(f, size, pattern_size, refine, target) for f in (fl, fr)]
         missing = [f for f, c in zip((fl, fr), corners) if c is None]
         if missing:
             warnings.warn(f"board not found in {', '.join(missing)}: dropping the pair ({Path(fl).name}, "
@@ -70,7 +102,7 @@ def detect_pairs(left_files, right_files, pattern_size=(11, 8), progress: bool =
         used_r.append(fr)
     if len(pts_l) < min_views:
         raise CalibrationError(f"only {len(pts_l)} of {len(left_files)} stereo pairs show the "
-                               f"{pattern_size[0]} x {pattern_size[1]}-corner board in both images; at least "
+                               f"{_target_name(target, pattern_size)} in both images; at least "
                                f"{min_views} are needed (check --pattern and the images)")
     return DetectedPairs(used_l, used_r, np.array(pts_l), np.array(pts_r), size[0][:2], dropped)
 
@@ -78,11 +110,11 @@ def detect_pairs(left_files, right_files, pattern_size=(11, 8), progress: bool =
 def calibrate_from_files(left_files, right_files, *, square_mm: float, pattern_size=(11, 8), model: str = "rmm",
                          tilt_guess_left_deg=(0.0, 0.0), tilt_guess_right_deg=(0.0, 0.0), joint: bool = True,
                          progress: bool = True, refine_corners: bool = False,
-                         lens: str = "brown4") -> tuple[StereoCalibration, DetectedPairs]:
+                         lens: str = "brown4", target=None) -> tuple[StereoCalibration, DetectedPairs]:
     """Detect the board in every pair and run the stepwise stereo calibration (``lens``: see
-    :data:`~measurement.calibration.stepwise.LENSES`)."""
-    pairs = detect_pairs(left_files, right_files, pattern_size, progress, refine=refine_corners)
-    cal = calibrate_stereo(pairs.points_left, pairs.points_right, board_points_mm(pattern_size, square_mm),
+    :data:`~measurement.calibration.stepwise.LENSES`; ``target``: see :func:`detect_pairs`)."""
+    pairs = detect_pairs(left_files, right_files, pattern_size, progress, refine=refine_corners, target=target)
+    cal = calibrate_stereo(pairs.points_left, pairs.points_right, target_points_mm(target, pattern_size, square_mm),
                            pairs.image_size, model=model, tilt_guess_left_deg=tilt_guess_left_deg,
                            tilt_guess_right_deg=tilt_guess_right_deg, joint=joint, lens=lens)
     return cal, pairs
@@ -99,7 +131,7 @@ class DetectedViews:
 
 
 def detect_views(files, pattern_size=(11, 8), progress: bool = True, refine: bool = False,
-                 min_views: int = MIN_VIEWS) -> DetectedViews:
+                 min_views: int = MIN_VIEWS, target=None) -> DetectedViews:
     """Detect the board in every image of one camera (single-camera calibration); ``refine`` as in
     :func:`detect_pairs`. Images whose board is not found are dropped with a warning."""
     files = [str(f) for f in files]
@@ -108,7 +140,7 @@ def detect_views(files, pattern_size=(11, 8), progress: bool = True, refine: boo
     size = []
     points, used, dropped = [], [], []
     for f in tqdm(files, desc="detecting boards", disable=not progress):
-        corners = _read_and_detect(f, size, pattern_size, refine)
+        corners = _read_and_detect(f, size, pattern_size, refine, target)
         if corners is None:
             warnings.warn(f"board not found in {f}: dropping it", stacklevel=2)
             dropped.append(f)
@@ -116,7 +148,7 @@ def detect_views(files, pattern_size=(11, 8), progress: bool = True, refine: boo
         points.append(corners)
         used.append(f)
     if len(points) < min_views:
-        raise CalibrationError(f"only {len(points)} of {len(files)} images show the {pattern_size[0]} x "
-                               f"{pattern_size[1]}-corner board; at least {min_views} are needed (check --pattern "
-                               "and the images)")
+        raise CalibrationError(f"only {len(points)} of {len(files)} images show the "
+                               f"{_target_name(target, pattern_size)}; at least {min_views} are needed (check "
+                               "--pattern and the images)")
     return DetectedViews(used, np.array(points), size[0][:2], dropped)
