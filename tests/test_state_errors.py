@@ -63,14 +63,19 @@ def test_straightness_bow_peaks_at_mid_travel_perpendicular_and_vanishes_at_the_
     np.testing.assert_allclose(lateral @ np.array([0.0, -1.0, 0.0]), 0.0, rtol=0, atol=1e-18)
 
 
-def test_straightness_direction_is_made_perpendicular_to_a_general_axis_1e15():
-    """With an oblique requested direction, the deviation is perpendicular to the axis, 3 µm at mid-travel."""
+def test_straightness_direction_is_made_perpendicular_to_a_general_axis_to_4_ulp_of_the_travel():
+    """With an oblique requested direction, the deviation is perpendicular to the axis, 3 µm at mid-travel.
+
+    The deviation is read as (displacement - 10 mm x axis): a difference of numbers near 10 mm, whose float64
+    spacing is 1.8e-15 mm, so it is exact to a few of those spacings and no better (1e-15 passed with the numpy of
+    earlier runs and failed by 1.5e-15 with numpy 2.4.6)."""
     axis = np.array([1.0, 2.0, 2.0]) / 3.0
     errors = StageErrors(straightness_um=3.0, travel_mm=20.0, straightness_direction_world=(1.0, 0.0, 0.0))
     lateral = (true_stage_displacements_mm([10.0], axis, errors) - 10.0 * axis)[0]
     p = np.array([1.0, 0.0, 0.0]) - axis[0] * axis                            # Gram-Schmidt, by hand
-    np.testing.assert_allclose(lateral, 3e-3 * p / np.linalg.norm(p), rtol=0, atol=1e-15)
-    assert abs(lateral @ axis) < 1e-15
+    ulp = np.spacing(10.0)
+    np.testing.assert_allclose(lateral, 3e-3 * p / np.linalg.norm(p), rtol=0, atol=4 * ulp)
+    assert abs(lateral @ axis) < 4 * ulp
 
 
 def test_random_straightness_is_seeded_zero_at_the_ends_perpendicular_with_the_stated_rms_1e9():

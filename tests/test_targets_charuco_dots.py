@@ -357,7 +357,8 @@ def _score_calibration(rig, board, poses, views, found, points_mm, label, *, com
 
 def test_calibration_from_rendered_charuco_views(paper_rig_quarter, charuco):
     board, spec, poses, views, found = charuco
-    _score_calibration(paper_rig_quarter, board, poses, views, found, charuco_points_mm(spec), "charuco")
+    _, score = _score_calibration(paper_rig_quarter, board, poses, views, found, charuco_points_mm(spec), "charuco")
+    assert score["rms_3d_aligned_um"] <= 1.0 / SCALE          # (and the other bounds, inside _score_calibration)
 
 
 def test_calibration_from_partly_seen_charuco_views(paper_rig_quarter, charuco):
@@ -382,7 +383,9 @@ def test_calibration_from_partly_seen_charuco_views(paper_rig_quarter, charuco):
 
 def test_calibration_from_rendered_dot_grid_views(paper_rig_quarter, dots):
     board, spec, poses, views, found = dots
-    _score_calibration(paper_rig_quarter, board, poses, views, found, dot_grid_points_mm(spec), "dot grid")
+    _, score = _score_calibration(paper_rig_quarter, board, poses, views, found, dot_grid_points_mm(spec),
+                                  "dot grid")
+    assert score["rms_3d_aligned_um"] <= 1.0 / SCALE          # (and the other bounds, inside _score_calibration)
 
 
 # ------------------------------------------------------------------------------------------------------------
