@@ -26,7 +26,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from measurement.calibration.detection import _to_gray8
+from measurement.calibration.detection import _to_gray8, saddle_points
 
 
 def _positive(name: str, value) -> float:
@@ -162,7 +162,21 @@ def dot_grid_points_mm(spec: DotGridSpec) -> np.ndarray:
 
 # ------------------------------------------------------------------------------------------------------------
 # Detection
-def detect_charuco(image: np.ndarray, spec: CharucoSpec) -> np.ndarray:
+def _corner_spacing_px(points: np.ndarray, nx: int) -> float:
+    """Median distance (px) between found ChArUco corners that are neighbours in a row or a column (ids k, k + 1
+    in one row; k, k + nx); NaN if none."""
+    found = np.all(np.isfinite(points), axis=1)
+    ids = np.arange(len(points))
+    d = []
+    for step, same_row in ((1, True), (nx, False)):
+        a = ids[:-step]
+        pair = found[a] & found[a + step] & ((a % nx != nx - 1) if same_row else True)
+        d.append(np.linalg.norm(points[a + step][pair] - points[a][pair], axis=1))
+    d = np.concatenate(d)
+    return float(np.median(d)) if d.size else float("nan")
+
+
+def detect_charuco(image: np.ndarray, spec: CharucoSpec, *, refine: bool = True) -> np.ndarray:
     """Sub-pixel ChArUco corners, row ``k`` for corner id ``k``; NaN rows for corners not found.
 
     Parameters
@@ -182,7 +196,10 @@ def detect_charuco(image: np.ndarray, spec: CharucoSpec) -> np.ndarray:
     by ``cornerSubPix`` on the image. Measured on rendered views (``tests/test_targets_charuco_dots.py``): about
     0.08 px RMS from the true corners, up to ~0.3 px on oblique views, i.e. about twice the error of
     :func:`measurement.calibration.detection.detect_checkerboard` on the same rig (the markers inside the
-    white squares sit in ``cornerSubPix``'s window).
+    white squares sit in ``cornerSubPix``'s window). ``refine`` (default) then moves each corner to the saddle
+    point of the image (:func:`measurement.calibration.detection.saddle_points`) in a window that stays inside the
+    white margin between the corner and the markers (3/4 of it, 3-12 px half-width): 0.029 px RMS (max 0.08 px)
+    instead of 0.079 px (max 0.32 px) on the same views (14 quarter-scale stereo views of the paper rig).
     """
     if not isinstance(spec, CharucoSpec):
         raise ValueError(f"spec must be a CharucoSpec, got {type(spec).__name__}")
@@ -201,6 +218,13 @@ def detect_charuco(image: np.ndarray, spec: CharucoSpec) -> np.ndarray:
         return out
     ids = np.asarray(ids).reshape(-1).astype(int)
     out[ids] = np.asarray(corners, dtype=float).reshape(-1, 2)
+    if refine:
+        spacing = _corner_spacing_px(out, spec.squares[0] - 1)
+        if np.isfinite(spacing):
+            margin_px = spacing * (spec.square_mm - spec.marker_mm) / (2.0 * spec.square_mm)
+            half = int(np.clip(np.floor(0.75 * margin_px), 3, 12))
+            found = np.all(np.isfinite(out), axis=1)
+            out[found] = saddle_points(image, out[found], half, sigma_px=half / 3.0)
     return out
 
 
