@@ -95,6 +95,15 @@ def source_line(data: Path) -> str:
 # --------------------------------------------------------------------------------------------------------
 # Step 1: intrinsics
 # --------------------------------------------------------------------------------------------------------
+def _save_npz(path: Path, **arrays) -> None:
+    """np.savez through the atomic writer: an interrupted run leaves no truncated cache behind."""
+    from measurement.files import atomic_write_bytes
+
+    buf = io.BytesIO()
+    np.savez(buf, **arrays)
+    atomic_write_bytes(path, buf.getvalue())
+
+
 def detect_corners(path: Path, max_side_px: int) -> np.ndarray | None:
     """Ordered inner corners of one checkerboard image, (N, 2) px (0-based pixel centres), or ``None``: the
     instrument's own :func:`~measurement.calibration.detection.detect_checkerboard`, which searches a copy shrunk to
@@ -130,8 +139,8 @@ def corners_for_camera(data: Path, out: Path, cam: str, max_side_px: int):
             pts.append(c)
         log(f"  camera {cam}: {f.name} {'found' if c is not None else 'NOT found'} ({time.time() - t:.1f} s)")
     points = np.array(pts)
-    np.savez(cache, names=np.array(names), found=np.array(found), points=points, size=np.array(size),
-             max_side_px=max_side_px)
+    _save_npz(cache, names=np.array(names), found=np.array(found), points=points, size=np.array(size),
+              max_side_px=max_side_px)
     return [n for n, f in zip(names, found) if f], points, size
 
 
@@ -724,8 +733,8 @@ def measure(data: Path, out: Path, *, step: int = 10, subset: int = 41, order: i
         log("step 7: the same through the CLI (workbench stereo)")
         lines["step 7 CLI cross-check"] = cli_check(data, out, subset, step, order, min_zncc)
         times["7 CLI"] = time.time() - t
-    np.savez(out / "reference_points.npz", x_px=shape.x, y_px=shape.y, X_mm=shape.X_mm, valid=shape.valid,
-             residual_px=shape.residual_px, status=shape.right_match.status)
+    _save_npz(out / "reference_points.npz", x_px=shape.x, y_px=shape.y, X_mm=shape.X_mm, valid=shape.valid,
+              residual_px=shape.residual_px, status=shape.right_match.status)
     lines = {"step 1 intrinsics": l1, "step 2 extrinsics": l2, "step 3 stereo DIC": l3, "step 4 cylinder": l4,
              **lines}
     return {"counts": counts, "fraction": counts["triangulated"] / max(counts["converged"], 1),
@@ -791,7 +800,7 @@ def main(argv=None) -> int:
     from measurement.files import atomic_write_text
 
     atomic_write_text(args.out / "benchmark.txt", "\n".join(text) + "\n")
-    (args.out / "figures.json").write_text(json.dumps(
+    atomic_write_text(args.out / "figures.json", json.dumps(
         {"triangulated": r["counts"]["triangulated"], "converged": r["counts"]["converged"],
          "points": r["counts"]["points"], "fraction": r["fraction"], "radius_mm": r["radius_mm"],
          "rms_mm": r["rms_mm"], "rel_radius_error": r["rel_radius_error"], "times_s": r["times_s"]}, indent=1))
