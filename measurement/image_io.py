@@ -8,7 +8,8 @@ or to the high bits), the value range. :func:`to_uint8` makes the 8-bit copy tha
 detector and SIFT need, scaled by the data's own range (not by the container's 65535 or by 255).
 
 What is refused, with a ``ValueError`` that names the file: a missing file, a directory, an empty, truncated
-or unreadable file, a multi-page (or animated) file, a 2-channel image whose second channel is not declared
+or unreadable file, a multi-page (or animated) file (a stack of 3 or 4 frames that tifffile stored as one planar
+RGB(A) page included), a 2-channel image whose second channel is not declared
 alpha, more than 4 channels, complex or non-numeric samples. What is converted: colour (3 channels, or 4 with
 alpha) to grey with OpenCV's weights (0.299 R + 0.587 G + 0.114 B); an alpha channel is dropped, with a warning
 when it is not fully opaque (2-channel grey + alpha included); bilevel (1-bit) images to uint8 0/255; float16
@@ -157,6 +158,7 @@ def _decode_tiff(data: bytes, path: Path) -> np.ndarray:
             bits_per_sample = int(page.bitspersample)
             photometric = int(page.photometric) if page.photometric is not None else -1
             extrasamples = tuple(int(e) for e in (page.extrasamples or ()))
+            _refuse_stack_stored_as_planes(page, path, shape, axes, photometric)
             pixels = math.prod(n for n, a in zip(shape, axes) if a in "YX")
             if pixels > MAX_PIXELS or math.prod(shape) > 4 * MAX_PIXELS:
                 raise _Refused(f"cannot read image {path}: its header claims {shape} samples (corrupt?)")
@@ -233,6 +235,26 @@ def _tiff_by_opencv(data: bytes, path: Path, shape, dtype, axes, why: str, stric
 
 class _Refused(Exception):
     pass
+
+
+def _refuse_stack_stored_as_planes(page, path: Path, shape: tuple, axes: str, photometric: int) -> None:
+    """A stack of 3 or 4 frames that tifffile stored as one planar RGB(A) page: refused, not mixed to grey.
+
+    ``tifffile.imwrite(path, np.stack([f0, f1, f2]))`` guesses colour for a (3, H, W) or (4, H, W) array and
+    writes ONE page of separate R, G, B (, A) planes with its shape metadata ``{"shape": [3, H, W]}``; read as
+    colour it would silently become a weighted mean of the frames. Camera software writes colour interleaved
+    (contiguous), so a tifffile-written planar colour page whose planes come first is taken for the stack it
+    almost always is."""
+    if photometric != 2 or int(getattr(page, "planarconfig", 1) or 1) != 2 or not axes.startswith("S"):
+        return
+    description = str(getattr(page, "description", "") or "")
+    if not description.startswith("{") or '"shape"' not in description:
+        return                                   # not tifffile's shaped metadata: a colour image of another writer
+    planes = shape[0]
+    raise _Refused(f"image {path} holds {planes} pages (planes of {shape[2]} x {shape[1]} px that tifffile stored as "
+                   f"one planar RGB{'A' if planes == 4 else ''} page, as it does for a stack of {planes} frames "
+                   f"saved without photometric='minisblack'); expected one grey image: save one image per file, "
+                   f"or a colour image interleaved (planarconfig='contig')")
 
 
 def _invert_miniswhite(image: np.ndarray, bits_per_sample: int, path: Path) -> np.ndarray:

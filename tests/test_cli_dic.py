@@ -117,6 +117,25 @@ def test_a_directory_given_as_an_image_says_so(pair, tmp_path, capsys):
     assert f"--out {tmp_path} is a directory" in _last_error_line(capsys)
 
 
+def test_a_frame_stack_is_refused_before_any_output(pair, tmp_path, capsys):
+    """A 3-frame stack saved by tifffile (one planar 'RGB' page) used to be read as a grey mix of the frames and
+    the DIC exited 0; it exits 2 naming the file and the frame count, and writes nothing."""
+    import warnings
+
+    import tifffile
+
+    ref, dfm = pair
+    frames = np.stack([cv2.imread(str(f), cv2.IMREAD_UNCHANGED) for f in (ref, dfm, ref)])
+    stack = tmp_path / "frames.tif"
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        tifffile.imwrite(stack, frames)
+    out = tmp_path / "points.csv"
+    assert main(["dic", str(stack), str(dfm), "--roi", ROI, "--step", "20", "--out", str(out)]) == 2
+    assert f"{stack} holds 3 pages" in _last_error_line(capsys)
+    assert not out.exists()
+
+
 def test_a_full_disk_leaves_no_partial_csv(pair, tmp_path, capsys, monkeypatch):
     """ENOSPC while the CSV is flushed: exit 2, the message names the file, the earlier file is untouched and
     no temporary file is left (the CSV used to be left cut mid-row)."""

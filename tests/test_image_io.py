@@ -118,6 +118,22 @@ def test_multi_page_tiffs_and_animations_are_refused(tmp_path, speckle12):
             read_grey(animation)
 
 
+@pytest.mark.parametrize("frames", [3, 4])
+def test_a_stack_that_tifffile_stored_as_planar_colour_is_refused(tmp_path, speckle12, frames):
+    """``tifffile.imwrite(path, np.stack(three_frames))`` writes ONE planar RGB page (four frames: RGBA), which
+    was read as a grey mixture of the frames, exit 0; it is refused naming the file and the frame count."""
+    stack = np.stack([speckle12 // (k + 1) for k in range(frames)])
+    path = tmp_path / "series.tif"
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")          # tifffile's own deprecation note on guessing colour
+        tifffile.imwrite(path, stack)
+    with tifffile.TiffFile(path) as tif:         # the layout the refusal is about (not a multi-page file)
+        assert len(tif.pages) == 1 and tif.pages[0].axes == "SYX"
+    with pytest.raises(ValueError, match=rf"series\.tif holds {frames} pages \(planes of 64 x 48 px that tifffile "
+                                         rf"stored as one planar RGBA? page"):
+        read_grey(path)
+
+
 def test_two_channel_tiffs_need_a_declared_alpha_channel(tmp_path, speckle12):
     two = np.dstack([speckle12, speckle12[::-1]])
     plain = tmp_path / "two.tif"
@@ -161,7 +177,8 @@ def test_colour_becomes_grey_with_the_same_weights_in_every_layout(tmp_path, lay
     if layout == "png":
         assert cv2.imwrite(str(path), rgb[..., ::-1].astype(np.uint8))      # OpenCV writes BGR
     elif layout == "tif-float64-planar":
-        tifffile.imwrite(path, np.moveaxis(rgb, -1, 0), photometric="rgb", planarconfig="separate")
+        # planar colour as another writer stores it (no tifffile shape metadata: see the stack test below)
+        tifffile.imwrite(path, np.moveaxis(rgb, -1, 0), photometric="rgb", planarconfig="separate", metadata=None)
     else:
         tifffile.imwrite(path, rgb.astype(layout.split("-")[1]), photometric="rgb")
     image = read_grey(path)

@@ -140,6 +140,49 @@ def test_dice_solution_with_injected_bias_scores_that_bias(pair, tmp_path):
     assert m["valid_fraction"] == pytest.approx(1 - failed.mean(), abs=1e-12)
 
 
+def test_nan_rows_are_not_measured_points_and_the_rest_is_scored(pair, tmp_path):
+    """`workbench score --format csv` on a file where every 4th row holds NaN in u, v (and some rows NaN in x, y
+    too) used to stop with KeyError 'bias_u_px'. The NaN rows count as not measured; the rest, made from the truth
+    + 0.02 px in v, scores exactly that; the counts are printed and stored. A file with no finite row is an error
+    naming the file."""
+    x, y = _grid(pair, 10)
+    pt = point_truth(pair, x, y)
+    assert pt.valid.all()
+    nan_uv = np.arange(x.size) % 4 == 1
+    nan_all = np.arange(x.size) % 9 == 2
+    path = tmp_path / "tool.csv"
+    with open(path, "w") as f:
+        f.write("px,py,du,dv\n")
+        for i in range(x.size):
+            u, v = pt.uv_left_px[1, i, 0], pt.uv_left_px[1, i, 1] + 0.02
+            if nan_all[i]:
+                f.write("nan,nan,nan,nan\n")
+            else:
+                f.write(f"{x[i]:g},{y[i]:g},{'nan' if nan_uv[i] else f'{u:.12g}'},{'nan' if nan_uv[i] else f'{v:.12g}'}\n")
+    out = tmp_path / "scored"
+    proc = subprocess.run([sys.executable, "-m", "workbench.cli", "score", str(pair.folder), str(path), "--format",
+                           "csv", "--columns", "x=px,y=py,u=du,v=dv", "--out", str(out)], capture_output=True, text=True)
+    assert proc.returncode == 0, proc.stderr
+    m = json.loads((out / "metrics.json").read_text())["states"][0]
+    measured = ~nan_uv & ~nan_all
+    assert m["valid_points"] == measured.sum()
+    assert m["not_measured_points"] == (nan_uv & ~nan_all).sum()
+    assert m["rows_without_position"] == nan_all.sum()
+    assert m["bias_v_px"] == pytest.approx(0.02, abs=1e-9) and m["bias_u_px"] == pytest.approx(0.0, abs=1e-9)
+    assert f"{(nan_uv & ~nan_all).sum()} not measured" in proc.stdout
+    assert f"{nan_all.sum()} rows without a finite x, y" in proc.stdout
+
+    empty = tmp_path / "all_nan.csv"
+    empty.write_text("px,py,du,dv\n" + "".join(f"{x[i]:g},{y[i]:g},nan,nan\n" for i in range(5)))
+    proc = subprocess.run([sys.executable, "-m", "workbench.cli", "score", str(pair.folder), str(empty), "--format",
+                           "csv", "--columns", "x=px,y=py,u=du,v=dv", "--out", str(tmp_path / "none")],
+                          capture_output=True, text=True)
+    assert proc.returncode == 2 and "Traceback" not in proc.stderr
+    assert "all_nan.csv: no row holds a finite position and displacement (u, v); all 5 rows" in proc.stderr
+    with pytest.raises(ResultFormatError, match=r"all_nan\.csv: no row holds a finite"):
+        read_result(empty, "csv", "x=px,y=py,u=du,v=dv")
+
+
 def test_result_files_with_wrong_columns_are_refused(pair, tmp_path):
     bad = tmp_path / "bad.txt"
     bad.write_text("SUBSET_ID,COORD_X,COORDINATE_Y,DISPLACEMENT_X,DISPLACEMENT_Y\n0,1,2,3,4\n")

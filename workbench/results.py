@@ -240,7 +240,22 @@ def read_mapped_csv(path: Path, columns: dict[str, str], pixel_origin: str = "ce
 
 def read_result(path: str | Path, fmt: str = "native", columns: str | None = None, pixel_origin: str = "center",
                 length_unit: str = "mm") -> ToolResult:
-    """Read one result file in ``fmt`` (one of :data:`READERS`)."""
+    """Read one result file in ``fmt`` (one of :data:`READERS`).
+
+    Rows whose displacement is NaN (or that the tool flags) are failed points: ``valid`` is False there. A file
+    in which no row holds a finite position and displacement is refused (:class:`ResultFormatError`): there is
+    nothing to score, and a tool that failed everywhere should not look like one that measured zero points.
+    """
+    result = _read_any(path, fmt, columns, pixel_origin, length_unit)
+    usable = result.valid & np.isfinite(result.x_px) & np.isfinite(result.y_px)
+    if not usable.any():
+        what = "u, v" if result.has_2d else "U, V, W"
+        raise ResultFormatError(f"{result.source}: no row holds a finite position and displacement ({what}); all "
+                                f"{result.x_px.size} rows are NaN or flagged as failed")
+    return result
+
+
+def _read_any(path, fmt: str, columns: str | None, pixel_origin: str, length_unit: str) -> ToolResult:
     path = Path(path)
     if fmt not in READERS:
         raise ValueError(f"--format {fmt!r}: choose one of {', '.join(READERS)}")

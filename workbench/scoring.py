@@ -95,10 +95,15 @@ def score_state(dataset: Dataset, state: int, result: ToolResult, align: str = "
     truth = point_truth(dataset, result.x_px, result.y_px)
     on = truth.valid
     scored = on & result.valid
+    placed = np.isfinite(result.x_px) & np.isfinite(result.y_px)
+    # Failed points (NaN or flagged by the tool) count as not measured; rows without a position cannot be
+    # placed on the specimen and are counted apart.
     metrics = {"state": state, "label": dataset.labels[state], "points": int(result.x_px.size),
                "truth_points": int(on.sum()), "valid_points": int(scored.sum()),
+               "not_measured_points": int(np.sum(on & ~result.valid)),
+               "rows_without_position": int(np.sum(~placed)),
                "valid_fraction": float(scored.sum() / on.sum()) if on.any() else float("nan"),
-               "outside_points": int(np.sum(result.valid & ~on))}
+               "outside_points": int(np.sum(result.valid & ~on & placed))}
     e2 = e3 = None
     if result.has_2d:
         e2 = np.column_stack([result.u_px, result.v_px]) - truth.uv_left_px[state]
@@ -199,14 +204,15 @@ def write_score_report(out: Path, dataset: Dataset, scores: list[StateScore], to
     doc = {"dataset": str(dataset.folder), "kind": dataset.kind, "tool": tool, "results": [str(s) for s in sources],
            "notes": notes or [], "states": [s.metrics for s in scores]}
     atomic_write_text(out / "metrics.json", json.dumps(doc, indent=1))
-    keys = [k for k in ("valid_fraction", "bias_u_px", "bias_v_px", "std_u_px", "std_v_px", "rms_px", "max_px",
+    keys = [k for k in ("not_measured_points", "valid_fraction", "bias_u_px", "bias_v_px", "std_u_px", "std_v_px", "rms_px", "max_px",
                         "bias_U_um", "bias_V_um", "bias_W_um", "rms_um", "max_um", "position_rms_um")
             if any(k in s.metrics for s in scores)]
     fmt = lambda v: f"{v:.4g}" if isinstance(v, float) else str(v)  # noqa: E731
     lines = [f"# {tool} scored against the truth of `{dataset.folder.name}` ({dataset.kind})", "",
              f"Result files: {', '.join(f'`{s}`' for s in sources)}.", "",
              "Truth evaluated exactly at each reported reference position; px as OpenCV (integer pixel centres); "
-             "3-D errors in the left camera frame, µm.", "",
+             "3-D errors in the left camera frame, µm. Points the tool reports as NaN or failed on the specimen "
+             "are not measured (`not_measured_points`), left out of the errors and counted in `valid_fraction`.", "",
              "| state | label | points | " + " | ".join(keys) + " |", "|" + "---|" * (3 + len(keys))]
     for s in scores:
         lines.append(f"| {s.state} | {s.label} | {s.metrics['valid_points']}/{s.metrics['truth_points']} | "

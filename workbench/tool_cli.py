@@ -138,10 +138,16 @@ def score_command(args) -> int:
         s = score_state(dataset, state, result, args.align)
         scores.append(s)
         m = s.metrics
-        line = f"state {state} ({m['label']}): {m['valid_points']}/{m['truth_points']} points"
-        if "rms_px" in m:
+        line = f"state {state} ({m['label']}): {m['valid_points']}/{m['truth_points']} points scored"
+        if m["not_measured_points"]:
+            line += f" ({m['not_measured_points']} not measured: NaN or flagged by the tool, left out)"
+        if m["rows_without_position"]:
+            line += f"; {m['rows_without_position']} rows without a finite x, y left out"
+        if m["valid_points"] == 0:
+            line += "; no point on the specimen to score"
+        elif "bias_u_px" in m:
             line += f", u bias {m['bias_u_px']:+.4f} px rms {m['rms_u_px']:.4f}, v bias {m['bias_v_px']:+.4f} rms {m['rms_v_px']:.4f}"
-        if "rms_um" in m:
+        if m["valid_points"] and "bias_U_um" in m:
             line += f", 3-D error rms {m['rms_um']:.3g} µm (max {m['max_um']:.3g})"
         if "frame_hint" in m:
             notes.append(f"state {state}: {m['frame_hint']}")
