@@ -5,6 +5,8 @@ baseline tolerance in the stated direction; a small 2-D gate written as its own 
 gate with bicubic interpolation (biquintic in the baseline) or a smaller subset (higher noise floor) fails,
 with one JUnit test case per metric and the measured / threshold / baseline values in the failure message.
 """
+import json
+import re
 import subprocess
 import sys
 import xml.etree.ElementTree as ET
@@ -110,3 +112,105 @@ def test_gate_passes_on_its_baseline_and_fails_when_degraded(tmp_path):
     failed = {c.get("name") for c in ET.parse(tmp_path / "small.xml").getroot() if c.find("failure") is not None}
     assert "random_error_px" in failed                  # a 17 px subset roughly doubles the noise floor
     assert "FAIL" in (tmp_path / "small" / "gate.md").read_text()
+
+
+ONE_CHECK = """
+[gate]
+name = "settings"
+[instrument]
+subset_px = 25
+step_px = 10
+shape_order = {order}
+interpolation = "{interp}"
+[[check]]
+name = "bias"
+kind = "dic2d_bias"
+[check.params]
+shifts_px = [0.3]
+[check.scenario.image2d]
+size_px = 96
+[check.metrics.max_abs_bias_px]
+max = 0.05
+"""
+
+RECORDING_ENGINE = '''
+import json
+from pathlib import Path
+
+from workbench.engines import ours
+
+
+def run(ref, deformed, out, **settings):
+    """Writes what it was given beside its result, then measures with this project's instrument."""
+    Path(out).with_suffix(".settings.json").write_text(json.dumps(settings))
+    return ours(ref, deformed, out, **settings)
+
+
+def no_order(ref, deformed, out, *, subset_px, step_px, roi_xyxy_px):
+    return ours(ref, deformed, out, subset_px=subset_px, step_px=step_px, roi_xyxy_px=roi_xyxy_px)
+'''
+
+
+def _run_env(path, out, *extra, pythonpath):
+    import os
+
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join(filter(None, [str(pythonpath), os.environ.get("PYTHONPATH")]))}
+    return subprocess.run([sys.executable, "-m", "workbench.cli", "gate", str(path), "--out", str(out), *extra],
+                          capture_output=True, text=True, env=env)
+
+
+def test_a_gate_passes_its_settings_to_a_user_engine_and_names_them_in_junit(tmp_path):
+    """`workbench gate --engine MODULE:FUNCTION` ran the user's engine without the gate's shape-function order
+    and interpolant (it got neither and nothing said so). The engine now receives both as the gate file states
+    them (order 2, bicubic: not the engine's defaults 1 and biquintic), and every JUnit case names them."""
+    (tmp_path / "recording_engine.py").write_text(RECORDING_ENGINE)
+    gate = tmp_path / "gate.toml"
+    gate.write_text(ONE_CHECK.format(order=2, interp="bicubic"))
+    proc = _run_env(gate, tmp_path / "out", "--engine", "recording_engine:run", "--junit", str(tmp_path / "j.xml"),
+                    pythonpath=tmp_path)
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    given = [json.loads(p.read_text()) for p in (tmp_path / "out" / "engine").glob("*.settings.json")]
+    assert given and all(g["order"] == 2 and g["interpolation"] == "bicubic" for g in given), given
+    assert all(g["subset_px"] == 25 and g["step_px"] == 10 for g in given), given
+    case = ET.parse(tmp_path / "j.xml").getroot().find("testcase")
+    props = {p.get("name"): p.get("value") for p in case.find("properties")}
+    assert props == {"engine": "recording_engine:run", "subset_px": "25", "step_px": "10", "order": "2",
+                     "interpolation": "bicubic"}
+    assert "ran with engine = recording_engine:run, subset_px = 25, step_px = 10, order = 2, interpolation = bicubic" \
+        in case.find("system-out").text
+
+
+@pytest.mark.parametrize("engine, message", [
+    ("recording_engine:no_order", r"measures with order = 1, but no_order\(\) takes no 'order' keyword"),
+    (f"{sys.executable} -m workbench.cli dic {{ref}} {{def}} --out {{out}}",
+     r"measures with order = 1, but the template has no \{order\} placeholder"),
+    ("workbench.peers.pyvale_engine:run", r"measures with interpolation = 'biquintic', which the engine does not offer"),
+])
+def test_an_engine_that_cannot_take_a_setting_is_refused_before_anything_runs(tmp_path, engine, message):
+    (tmp_path / "recording_engine.py").write_text(RECORDING_ENGINE)
+    gate = tmp_path / "gate.toml"
+    gate.write_text(ONE_CHECK.format(order=1, interp="biquintic"))
+    proc = _run_env(gate, tmp_path / "out", "--engine", engine, "--store", str(tmp_path / "store"),
+                    pythonpath=tmp_path)
+    assert proc.returncode == 2, proc.stdout + proc.stderr
+    assert re.search(message, proc.stderr), proc.stderr
+    assert not (tmp_path / "store").exists() and not (tmp_path / "out" / "gate.json").exists()
+
+
+def test_a_command_engine_gets_the_settings_through_its_placeholders(tmp_path):
+    """The same gate through a command template with {order} and {interpolation}: the command (a recorder in
+    front of our own CLI as 'another tool') is called with the gate's order 2 and bicubic."""
+    (tmp_path / "recorder.py").write_text(
+        "import json, sys\nfrom pathlib import Path\nfrom workbench.cli import main\n"
+        "out = sys.argv[sys.argv.index('--out') + 1]\n"
+        "Path(out).with_suffix('.argv.json').write_text(json.dumps(sys.argv[1:]))\n"
+        "sys.exit(main(['dic', *sys.argv[1:]]))\n")
+    gate = tmp_path / "gate.toml"
+    gate.write_text(ONE_CHECK.format(order=2, interp="bicubic"))
+    template = (f"{sys.executable} {tmp_path / 'recorder.py'} {{ref}} {{def}} --subset {{subset}} --step {{step}} "
+                f"--roi {{roi}} --order {{order}} --interp {{interpolation}} --out {{out}}")
+    proc = _run_env(gate, tmp_path / "out", "--engine", template, pythonpath=tmp_path)
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    argv = json.loads(next(iter((tmp_path / "out" / "engine").glob("*.argv.json"))).read_text())
+    assert argv[argv.index("--order") + 1] == "2" and argv[argv.index("--interp") + 1] == "bicubic", argv
+    assert argv[argv.index("--subset") + 1] == "25" and argv[argv.index("--step") + 1] == "10", argv

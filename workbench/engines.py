@@ -3,10 +3,17 @@
 * **Command template**: ``'mytool {ref} {def} --subset {subset} --out {out}'`` — run without a shell (the
   template is split like a POSIX shell would, then each placeholder is replaced), once per deformed state.
   Placeholders: ``{ref}``, ``{def}`` (image files), ``{out}`` (the result file it must write), ``{subset}``,
-  ``{step}`` (px), ``{roi}`` (``x0,y0,x1,y1``, inclusive pixel bounds of subset centres), ``{x0} {y0} {x1} {y1}``.
+  ``{step}`` (px), ``{roi}`` (``x0,y0,x1,y1``, inclusive pixel bounds of subset centres), ``{x0} {y0} {x1} {y1}``,
+  and the instrument settings ``{order}`` (shape function: 1 affine, 2 quadratic), ``{interpolation}``
+  (``biquintic`` or ``bicubic``), ``{prefilter_sigma}`` (Gaussian pre-filter, px).
 * **Python entry point**: ``'package.module:function'``, called as
   ``function(ref, def, out, subset_px=.., step_px=.., roi_xyxy_px=(..), **options)`` and writing ``out``;
-  the module may say which reader reads it (``RESULT_FORMAT = "pyvale"``).
+  the module may say which reader reads it (``RESULT_FORMAT = "pyvale"``) and which values of a setting it
+  can take (``SUPPORTED_SETTINGS = {"interpolation": ("bicubic",)}``).
+
+Settings that a caller judges (a gate's shape-function order and interpolant, :func:`check_settings`) must
+reach the engine: a template needs their placeholders, a function their keywords (or ``**kwargs``); an engine
+that cannot take one is refused before anything runs, naming the setting.
 
 The engine sees image files only (as with a real rig); the result is read by :mod:`workbench.results` and
 scored by :mod:`workbench.scoring`. An engine that fails, or writes no result file, is an error naming the
@@ -15,6 +22,7 @@ state and the command.
 from __future__ import annotations
 
 import importlib
+import inspect
 import re
 import shlex
 import subprocess
@@ -24,7 +32,9 @@ from pathlib import Path
 
 import numpy as np
 
-PLACEHOLDERS = ("ref", "def", "out", "subset", "step", "roi", "x0", "y0", "x1", "y1")
+#: Instrument settings an engine can be given: keyword of a Python engine -> placeholder of a command template.
+SETTINGS = {"order": "order", "interpolation": "interpolation", "prefilter_sigma_px": "prefilter_sigma"}
+PLACEHOLDERS = ("ref", "def", "out", "subset", "step", "roi", "x0", "y0", "x1", "y1", *SETTINGS.values())
 _PY_ENTRY = re.compile(r"^[A-Za-z_][\w.]*:[A-Za-z_]\w*$")
 
 
@@ -65,10 +75,62 @@ def parse_engine(text: str) -> Engine:
     return Engine("command", text)
 
 
+def instrument_settings(order: int, interpolation: str, prefilter_sigma_px: float = 0.0) -> dict:
+    """The settings an engine must honour for a 2-D measurement (``SETTINGS`` keys). No pre-filter is not a
+    setting: every engine sees the raw images unless told otherwise."""
+    out = {"order": int(order), "interpolation": str(interpolation)}
+    if prefilter_sigma_px:
+        out["prefilter_sigma_px"] = float(prefilter_sigma_px)
+    return out
+
+
+def check_settings(engine: Engine, settings: dict, who: str = "the gate") -> None:
+    """Refuse (``ValueError`` naming the setting) an engine that cannot take one of ``settings``.
+
+    A command template must hold the setting's placeholder; a Python function must take its keyword (or
+    ``**kwargs``); a module's ``SUPPORTED_SETTINGS`` (``{setting: allowed values}``) must allow its value.
+    """
+    unknown = sorted(set(settings) - set(SETTINGS))
+    if unknown:
+        raise ValueError(f"{who}: unknown engine setting(s) {', '.join(unknown)} (known: {', '.join(SETTINGS)})")
+    if engine.kind == "command":
+        found = set(re.findall(r"\{(\w+)\}", engine.spec))
+        for name, value in settings.items():
+            if SETTINGS[name] not in found:
+                raise ValueError(f"--engine {engine.spec!r}: {who} measures with {name} = {value!r}, but the template "
+                                 f"has no {{{SETTINGS[name]}}} placeholder to pass it; put it where the tool takes "
+                                 f"that setting, or set the tool's own value in the instrument settings")
+        return
+    module_name, func_name = engine.spec.split(":")
+    try:
+        module = importlib.import_module(module_name)
+        func = getattr(module, func_name)
+    except (ImportError, AttributeError) as err:
+        raise ValueError(f"--engine {engine.spec}: {err}") from None
+    try:
+        params = inspect.signature(func).parameters
+    except (TypeError, ValueError):
+        params = {}
+    takes_any = any(p.kind is inspect.Parameter.VAR_KEYWORD for p in params.values())
+    supported = getattr(module, "SUPPORTED_SETTINGS", {}) or {}
+    for name, value in settings.items():
+        if name not in params and not takes_any:
+            raise ValueError(f"--engine {engine.spec}: {who} measures with {name} = {value!r}, but {func_name}() takes "
+                             f"no {name!r} keyword (nor **kwargs); add it, or set the engine's own value in the "
+                             f"instrument settings")
+        if name in supported and value not in tuple(supported[name]):
+            allowed = ", ".join(repr(v) for v in supported[name]) or "no value: the engine does not take it"
+            raise ValueError(f"--engine {engine.spec}: {who} measures with {name} = {value!r}, which the engine does "
+                             f"not offer ({module_name}.SUPPORTED_SETTINGS allows {allowed})")
+
+
 def run_engine(engine: Engine, ref: Path, deformed: Path, out: Path, *, subset_px: int, step_px: int,
                roi_xyxy_px: tuple[int, int, int, int], timeout_s: float | None = None, options: dict | None = None
                ) -> dict:
-    """Run ``engine`` on one pair; returns ``{"seconds", "command"}``. Raises RuntimeError when it fails."""
+    """Run ``engine`` on one pair; returns ``{"seconds", "command"}``. Raises RuntimeError when it fails.
+
+    ``options``: keywords of a Python engine; for a command template, the :data:`SETTINGS` among them fill
+    their placeholders (a placeholder with no value is an error naming it)."""
     out.parent.mkdir(parents=True, exist_ok=True)
     if out.exists():
         out.unlink()
@@ -85,7 +147,13 @@ def run_engine(engine: Engine, ref: Path, deformed: Path, out: Path, *, subset_p
     else:
         values = {"ref": str(ref), "def": str(deformed), "out": str(out), "subset": str(subset_px),
                   "step": str(step_px), "roi": ",".join(str(int(v)) for v in roi_xyxy_px),
-                  **{k: str(int(v)) for k, v in zip(("x0", "y0", "x1", "y1"), roi_xyxy_px)}}
+                  **{k: str(int(v)) for k, v in zip(("x0", "y0", "x1", "y1"), roi_xyxy_px)},
+                  **{SETTINGS[k]: f"{v:g}" if isinstance(v, float) else str(v)
+                     for k, v in (options or {}).items() if k in SETTINGS}}
+        missing = sorted(set(re.findall(r"\{(\w+)\}", engine.spec)) - set(values))
+        if missing:
+            raise ValueError(f"--engine {engine.spec!r}: no value for {', '.join('{' + m + '}' for m in missing)} "
+                             "(give the setting, e.g. the instrument's shape-function order)")
         argv = [re.sub(r"\{(\w+)\}", lambda m: values[m.group(1)], w) for w in shlex.split(engine.spec)]
         command = shlex.join(argv)
         try:
@@ -127,8 +195,7 @@ def array_engine(engine, workdir: Path, options: dict | None = None):
         margin = subset_px // 2 + 8
         out = workdir / f"star_{counter['n']:02d}.csv"
         run_engine(engine, files[0], files[1], out, subset_px=subset_px, step_px=step_px,
-                   roi_xyxy_px=(margin, margin, w - 1 - margin, h - 1 - margin),
-                   options=options if engine.kind == "python" else None)
+                   roi_xyxy_px=(margin, margin, w - 1 - margin, h - 1 - margin), options=options)
         r = read_result(out, engine.result_format or "native")
         return r.x_px, r.y_px, r.u_px, r.v_px
 
@@ -137,12 +204,15 @@ def array_engine(engine, workdir: Path, options: dict | None = None):
 
 
 def ours(ref: str, deformed: str, out: str, *, subset_px: int = 33, step_px: int = 8, roi_xyxy_px=None,
-         order: int = 1, interpolation: str = "biquintic", **_options) -> Path:
-    """This project's instrument as a Python engine (native CSV): the reference the interface is checked with."""
+         order: int = 1, interpolation: str = "biquintic", prefilter_sigma_px: float = 0.0) -> Path:
+    """This project's instrument as a Python engine (native CSV): the reference the interface is checked with.
+
+    Every keyword is a setting it honours; any other is a TypeError (nothing is silently ignored)."""
     from measurement.dic import DICSettings, correlate
     from measurement.image_io import read_grey
 
-    settings = DICSettings(subset_size=subset_px, step=step_px, order=order, interpolation=interpolation)
+    settings = DICSettings(subset_size=subset_px, step=step_px, order=order, interpolation=interpolation,
+                           lowpass_sigma_px=float(prefilter_sigma_px))
     result = correlate(read_grey(ref).astype(float), read_grey(deformed).astype(float), settings,
                        roi=None if roi_xyxy_px is None else tuple(int(v) for v in roi_xyxy_px))
     return result.to_csv(out)

@@ -22,8 +22,10 @@ writes ``gate.md``, ``gate.json`` and JUnit XML (one test case per metric; a fai
 threshold and baseline) and exits non-zero on any failure. ``--update-baseline`` writes the measured values
 as the new baseline instead of comparing (commit it when a change is meant to move a figure).
 
-2-D checks run any engine through :mod:`workbench.engines` (``--engine``; default this project's instrument
-with the gate's settings); stereo checks (``rigid_motion``, ``calibration``) measure with this project's
+2-D checks run any engine through :mod:`workbench.engines` (``--engine``; default this project's instrument)
+with the gate's settings: subset, step, shape-function order and interpolant (and the pre-filter when set) reach
+the engine as keywords or template placeholders, and an engine that cannot take one is refused before anything
+runs, naming it; every JUnit case lists the settings it ran with. Stereo checks (``rigid_motion``, ``calibration``) measure with this project's
 stereo pipeline. Every check renders through the store, so a rerun only measures.
 """
 from __future__ import annotations
@@ -98,7 +100,7 @@ def _engine_result(engine, dataset, instrument: Instrument, workdir: Path, optio
     out = workdir / f"{dataset.folder.name}.csv"
     roi = subset_roi_xyxy_px(dataset, instrument.subset_px)
     run_engine(engine, dataset.images[0]["left"], dataset.images[1]["left"], out, subset_px=instrument.subset_px,
-               step_px=instrument.step_px, roi_xyxy_px=roi, options=options if engine.kind == "python" else None)
+               step_px=instrument.step_px, roi_xyxy_px=roi, options=options)
     return read_result(out, engine.result_format or "native")
 
 
@@ -327,13 +329,20 @@ def verdict(rule: MetricRule, value: float | None, baseline: float | None) -> tu
 def run_gate(gate: Gate, out: Path, engine_spec: str | None = None, baseline_path: Path | None = None,
              store=None, update_baseline: bool = False, log=print) -> dict:
     """Run every check, judge every metric; returns the record written to ``gate.json``."""
-    from workbench.engines import parse_engine
+    from workbench.engines import check_settings, instrument_settings, parse_engine
     from workbench.store import DatasetStore
 
     store = store if isinstance(store, DatasetStore) else DatasetStore(store)
     engine = parse_engine(engine_spec or DEFAULT_ENGINE)
     inst = gate.instrument
-    options = {"order": inst.shape_order, "interpolation": inst.interpolation} if engine_spec is None else {}
+    # Every setting the gate judges reaches the engine, or the engine is refused before anything runs.
+    options = instrument_settings(inst.shape_order, inst.interpolation, inst.prefilter_sigma_px)
+    if any(c.kind in ENGINE_CHECKS for c in gate.checks):
+        try:
+            check_settings(engine, options, who=f"the gate {gate.path.name}")
+        except ValueError as err:
+            raise GateError(str(err)) from None
+    ran_with = {"engine": engine.spec, "subset_px": inst.subset_px, "step_px": inst.step_px, **options}
     baseline_path = baseline_path or gate.baseline
     baseline = {}
     if baseline_path is not None and baseline_path.is_file() and not update_baseline:
@@ -367,7 +376,8 @@ def run_gate(gate: Gate, out: Path, engine_spec: str | None = None, baseline_pat
                 passed, message = verdict(rule, value, baseline.get(key))
             rows.append({"check": check.name, "metric": rule.name, "value": value, "baseline": baseline.get(key),
                          "max": rule.max, "min": rule.min, "rel_tol": rule.rel_tol, "passed": passed,
-                         "message": message, "seconds": timings[check.name]})
+                         "message": message, "seconds": timings[check.name], "settings": _ran_with(check, inst,
+                                                                                                   ran_with)})
         log(f"  {timings[check.name]:.1f} s: " + ", ".join(f"{k} {v:.4g}" for k, v in values.items()
                                                           if isinstance(v, float)) if values else f"  {error}")
     record = {"gate": gate.name, "file": str(gate.path), "engine": engine.spec,
@@ -386,6 +396,20 @@ def run_gate(gate: Gate, out: Path, engine_spec: str | None = None, baseline_pat
              "metrics": {f"{r['check']}.{r['metric']}": r["value"] for r in rows}}, indent=1))
         log(f"wrote the baseline {baseline_path}")
     return record
+
+
+def _ran_with(check: Check, inst: Instrument, engine_settings: dict) -> dict:
+    """The settings a check measured with: the engine and its settings for the 2-D checks, this project's
+    stereo pipeline and the whole instrument for the others."""
+    if check.kind == "star":
+        return {**engine_settings, "step_px": int(check.params.get("step_px", 3))}
+    if check.kind in ENGINE_CHECKS:
+        return dict(engine_settings)
+    return {"engine": "this project's stereo pipeline", **{k: getattr(inst, k) for k in inst.__dataclass_fields__}}
+
+
+def _settings_text(settings: dict) -> str:
+    return ", ".join(f"{k} = {v}" for k, v in settings.items())
 
 
 def table_lines(record: dict) -> list[str]:
@@ -408,11 +432,17 @@ def write_junit(record: dict, path: Path) -> None:
     for r in record["metrics"]:
         case = ET.SubElement(suite, "testcase", classname=f"gate.{r['check']}", name=r["metric"],
                              time=f"{r['seconds']:.2f}")
+        settings = r.get("settings", {})
+        # the settings the case ran with, as JUnit properties (shown by CI test reports) and in its text
+        props = ET.SubElement(case, "properties")
+        for k, v in settings.items():
+            ET.SubElement(props, "property", name=k, value=str(v))
+        ran = f" (ran with {_settings_text(settings)})" if settings else ""
         if not r["passed"]:
-            ET.SubElement(case, "failure", message=r["message"], type="AccuracyRegression").text = (
-                f"{r['check']}.{r['metric']}: {r['message']}")
+            ET.SubElement(case, "failure", message=r["message"] + ran, type="AccuracyRegression").text = (
+                f"{r['check']}.{r['metric']}: {r['message']}{ran}")
         else:
-            ET.SubElement(case, "system-out").text = r["message"]
+            ET.SubElement(case, "system-out").text = r["message"] + ran
     ET.indent(suite)
     Path(path).parent.mkdir(parents=True, exist_ok=True)
     atomic_write_text(path, ET.tostring(suite, encoding="unicode", xml_declaration=True) + "\n")

@@ -113,6 +113,15 @@ REQUIRED_COLUMNS = ("subset_x", "subset_y", "disp_u", "disp_v", "converged")
 #: Shape function by this project's ``order``.
 SHAPE_FUNCTIONS = {1: "AFFINE", 2: "QUAD"}
 
+#: pyvale's interpolant by this project's ``interpolation`` name: its B-spline is cubic.
+INTERPOLANTS = {"bicubic": "BSPLINE"}
+
+#: The instrument settings this engine offers (:func:`workbench.engines.check_settings` refuses others up
+#: front): no biquintic interpolant, and no Gaussian pre-filter of a given sigma (pyvale's
+#: ``image_filter_kernel`` is a kernel size, passed as an option of its own).
+SUPPORTED_SETTINGS = {"order": tuple(SHAPE_FUNCTIONS), "interpolation": tuple(INTERPOLANTS),
+                      "prefilter_sigma_px": ()}
+
 #: Array dtypes pyvale's in-memory path accepts; others are passed as float32.
 _PYVALE_DTYPES = (np.uint8, np.uint16, np.uint32, np.float32)
 
@@ -139,7 +148,7 @@ _MAX_DISPLACEMENT_PX = 64
 
 
 def run(reference, deformed, out, *, subset_px: int = 33, step_px: int = 8, roi_xyxy_px=None, order: int = 1,
-        threads: int = 1, **options) -> Path:
+        interpolation: str = "bicubic", threads: int = 1, **options) -> Path:
     """Run pyvale's 2-D DIC on one image pair and write its CSV to ``out`` (atomically).
 
     Parameters
@@ -159,6 +168,9 @@ def run(reference, deformed, out, *, subset_px: int = 33, step_px: int = 8, roi_
         pyvale's grid points ``k * step_px + (subset_px - 1) / 2`` inside these bounds.
     order : int
         Shape function: 1 = affine, 2 = quadratic.
+    interpolation : str
+        ``"bicubic"`` (pyvale's cubic B-spline, ``interpolation_routine="BSPLINE"``), the only one of this
+        project's interpolants pyvale has; ``interpolation_routine`` in ``options`` overrides it.
     threads : int
         OpenMP threads for pyvale (it sets them process-wide).
     **options
@@ -188,11 +200,15 @@ def run(reference, deformed, out, *, subset_px: int = 33, step_px: int = 8, roi_
     subset_px, step_px = int(subset_px), int(step_px)
     if order not in SHAPE_FUNCTIONS:
         raise ValueError(f"order must be 1 (affine) or 2 (quadratic), got {order!r}")
+    if interpolation not in INTERPOLANTS:
+        raise ValueError(f"pyvale engine: interpolation {interpolation!r} is not offered by pyvale; it has "
+                         f"{', '.join(INTERPOLANTS)} (cubic B-spline)")
     options = _check_options(dic, options)   # before reading images: a typo fails at once
     ref_image, def_image = _pyvale_arrays(read_grey(reference), read_grey(deformed), reference, deformed)
     mask = roi_mask(ref_image.shape, subset_px, roi_xyxy_px)
     seed = seed_point(mask, subset_px, step_px)
-    settings = {**_DEFAULTS, "max_displacement": _max_displacement(ref_image.shape), **options}
+    settings = {**_DEFAULTS, "interpolation_routine": INTERPOLANTS[interpolation],
+                "max_displacement": _max_displacement(ref_image.shape), **options}
 
     out = Path(out)
     with tempfile.TemporaryDirectory(prefix="pyvale-") as work, _keep_python_sigint():
