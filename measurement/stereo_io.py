@@ -20,10 +20,8 @@ def _fmt(value: float) -> str:
     return "nan" if not np.isfinite(value) else f"{value:.9g}"
 
 
-def write_state_csv(path: str | Path, shape: StereoShape, state: StereoState | None = None) -> Path:
-    """Per-point CSV: left reference pixel (x, y), position X, Y, Z and displacement U, V, W, D (left camera
-    frame, mm), ZNCC, triangulation residual (px) and status. ``state=None`` writes the reference shape."""
-    path = Path(path)
+def state_rows(shape: StereoShape, state: StereoState | None = None) -> list[list[str]]:
+    """The rows of :func:`write_state_csv` (columns :data:`CSV_COLUMNS`), as text, one per point."""
     if state is None:
         X = shape.X_mm
         U = np.zeros_like(X)
@@ -35,13 +33,19 @@ def write_state_csv(path: str | Path, shape: StereoShape, state: StereoState | N
     else:
         X, U, zncc, residual, status = state.X_mm, state.U_mm, state.zncc, state.residual_px, state.status
     D = np.linalg.norm(U, axis=1)
+    return [[str(int(shape.x[k])), str(int(shape.y[k])), *(_fmt(v) for v in X[k]), *(_fmt(v) for v in U[k]),
+             _fmt(D[k]), _fmt(zncc[k]), _fmt(residual[k]), str(int(status[k])), Status(int(status[k])).name.lower()]
+            for k in range(shape.x.size)]
+
+
+def write_state_csv(path: str | Path, shape: StereoShape, state: StereoState | None = None) -> Path:
+    """Per-point CSV: left reference pixel (x, y), position X, Y, Z and displacement U, V, W, D (left camera
+    frame, mm), ZNCC, triangulation residual (px) and status. ``state=None`` writes the reference shape."""
+    path = Path(path)
     with atomic_writer(path, "w", newline="") as handle:
         writer = csv.writer(handle)
         writer.writerow(CSV_COLUMNS)
-        for k in range(shape.x.size):
-            writer.writerow([int(shape.x[k]), int(shape.y[k]), *(_fmt(v) for v in X[k]), *(_fmt(v) for v in U[k]),
-                             _fmt(D[k]), _fmt(zncc[k]), _fmt(residual[k]), int(status[k]),
-                             Status(int(status[k])).name.lower()])
+        writer.writerows(state_rows(shape, state))
     return path
 
 

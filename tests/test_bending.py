@@ -125,6 +125,46 @@ def test_bending_writes_whole_report_figures_and_per_point_files(experiment):
     np.testing.assert_array_equal(truth.loads_N, LOADS)
 
 
+def _csv_columns(path):
+    import csv
+
+    with open(path, newline="") as handle:
+        rows = list(csv.DictReader(handle))
+    return {k: np.array([r[k] for r in rows]) for k in rows[0]}
+
+
+def test_every_figure_is_recomputed_from_the_per_point_files_alone(experiment):
+    """The per-point CSVs carried no truth and were in the calibrated, unaligned frame. From points/ alone (CSV +
+    alignment.json) the report's displacement RMSE per axis and strain RMSE against the window-filtered truth are
+    recomputed to 1e-6 relative; the aligned columns are R U, R X + t of the instrument's columns; metrics.json
+    names its images portably (kind, content hash = the store folder's name, the content)."""
+    out, m = experiment
+    points = out / "points"
+    alignment = json.loads((points / "alignment.json").read_text())
+    R, t = np.array(alignment["R"]), np.array(alignment["t_mm"])
+    c = _csv_columns(points / "state_02.csv")
+    f = lambda *names: np.column_stack([c[n].astype(float) for n in names])  # noqa: E731
+    np.testing.assert_allclose(f("U_al", "V_al", "W_al"), f("U", "V", "W") @ R.T, atol=1e-8)
+    np.testing.assert_allclose(f("X_al", "Y_al", "Z_al"), f("X", "Y", "Z") @ R.T + t, atol=1e-7)
+    scored = (c["status_name"] == "converged") & (c["on_specimen"] == "1")
+    err_um = 1e3 * (f("U_al", "V_al", "W_al") - f("U_true", "V_true", "W_true"))[scored]
+    state = m["states"][1]
+    np.testing.assert_allclose(np.sqrt(np.mean(err_um ** 2, axis=0)), state["U_rmse_um"], rtol=1e-6)
+    err_def_um = 1e3 * (f("Udef_al", "Vdef_al", "Wdef_al") - f("Udef_true", "Vdef_true", "Wdef_true"))[scored]
+    np.testing.assert_allclose(np.sqrt(np.mean(err_def_um ** 2, axis=0)), state["U_rmse_rigid_removed_um"], rtol=1e-6)
+    np.testing.assert_allclose(np.linalg.norm(f("U_true", "V_true", "W_true"), axis=1), c["D_true"].astype(float),
+                               rtol=1e-8)
+    s = _csv_columns(points / "strain_02.csv")
+    d = (s["magnitude"].astype(float) - s["magnitude_filtered"].astype(float))[s["scored"] == "1"]
+    d = d[np.isfinite(d)]
+    assert d.size == state["strain_points"]
+    assert 1e6 * np.sqrt(np.mean(d ** 2)) == pytest.approx(state["strain_magnitude_rmse_vs_filtered_ue"], rel=1e-5)
+    assert "E11_exact" in s and "area_change_filtered" in s
+    assert "true left camera" in (points / "README.md").read_text()
+    saved = json.loads((out / "metrics.json").read_text())["images_dataset"]
+    assert saved["store_folder"] == Path(m["images"]).name and saved["content"]["loads_N"] == list(LOADS)
+
+
 def test_a_state_that_cannot_be_matched_is_named_and_skipped(experiment, tmp_path, capsys):
     """A blank deformed image: that state is reported with its file name and skipped; the others are measured."""
     out, first = experiment

@@ -68,6 +68,20 @@ def test_noise_by_subset_study_on_a_local_cluster_follows_the_pan_2008_floor_wit
     floor = ds["predicted_error_px"].mean("repeat")
     assert floor.sel(noise_grey=3.0).values == pytest.approx(3.0 * floor.sel(noise_grey=1.0).values, rel=1e-9)
     assert np.all(floor.sel(subset_px=41).values < floor.sel(subset_px=21).values)
+    # per-point files beside the records: u, v, the exact shift, status; the case's figures follow from them
+    for record in summary.records:
+        rows = (tmp_path / "out" / "cases" / record["points_file"]).read_text().splitlines()
+        header = rows[0].split(",")
+        table = np.array([r.split(",") for r in rows[1:]])
+        col = lambda name: table[:, header.index(name)]  # noqa: E731
+        shift = record["scenario"]["image2d"].get("shift_x_px", 0.25)
+        np.testing.assert_allclose(col("u_true").astype(float), shift, rtol=0, atol=1e-12)
+        error = col("u").astype(float) - shift
+        ok = np.isfinite(error)
+        assert ok.sum() == record["metrics"]["points"] and set(col("status_name")[ok]) == {"converged"}
+        assert np.mean(error[ok]) == pytest.approx(record["metrics"]["bias_px"], abs=1e-8)
+        independent = ok & (col("independent") == "1")
+        assert np.std(error[independent]) == pytest.approx(record["metrics"]["random_error_px"], rel=1e-6)
     paths = write_study_outputs(study, tmp_path / "out", summary.records, ["test"], {})
     import xarray as xr
     back = xr.open_dataset(paths["netcdf"], engine="scipy")
@@ -75,6 +89,49 @@ def test_noise_by_subset_study_on_a_local_cluster_follows_the_pan_2008_floor_wit
     assert back.attrs["study_text"] == study.source_text
     html = paths["html"].read_text()
     assert html.count("data:image/png;base64,") >= 5 and "noise x subset (test)" in html
+
+
+SMALL = """
+[study]
+name = "small"
+repeats = 2
+[scenario]
+experiment = "dic2d"
+[scenario.image2d]
+size_px = 128
+[instrument]
+step_px = 8
+subset_px = 21
+"""
+
+
+def test_workers_start_and_compile_with_a_progress_line_and_every_case_runs_on_a_warmed_worker(tmp_path):
+    """A first case took > 20 s (Dask start-up + numba compilation) with no word on stdout. The sweep says when the
+    workers are up and when their kernels are compiled, before any case; every case ran on a worker that was
+    warmed (its pid among the warmed ones, recorded in sweep-log.json). --no-points writes no per-point file, and
+    a rerun that wants them runs those cases again."""
+    study = tmp_path / "small.toml"
+    study.write_text(SMALL)
+    out = tmp_path / "out"
+    proc = subprocess.run([*WORKBENCH, "sweep", str(study), "--workers", "2", "--store", str(tmp_path / "store"),
+                           "--no-points", "--out", str(out)], capture_output=True, text=True, timeout=600)
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    lines = proc.stdout.splitlines()
+    ready = next(i for i, line in enumerate(lines) if "2 Dask worker(s) ready in" in line)
+    warmed = next(i for i, line in enumerate(lines) if "kernels ready on 2 worker(s)" in line)
+    assert ready < warmed
+    log = json.loads((out / "sweep-log.json").read_text())
+    startup = log["workers_startup"]
+    records = [json.loads(p.read_text()) for p in (out / "cases").glob("*.json")]
+    assert len(records) == 2 and not list((out / "cases").glob("*.points.csv"))
+    assert all("points_file" not in r for r in records)
+    assert len(startup["warm_per_worker_s"]) == 2
+    assert {r["pid"] for r in records} <= set(startup["warm_pids"])
+    again = subprocess.run([*WORKBENCH, "sweep", str(study), "--workers", "2", "--store", str(tmp_path / "store"),
+                            "--out", str(out)], capture_output=True, text=True, timeout=600)
+    assert again.returncode == 0, again.stdout + again.stderr
+    assert "2 cases, 0 already done, 2 to run" in again.stdout
+    assert len(list((out / "cases").glob("*.points.csv"))) == 2
 
 
 def test_renders_are_stored_once_by_content_and_reused_across_instrument_settings(tmp_path):

@@ -39,20 +39,32 @@ def experiment_metrics(name: str) -> list[str]:
     return list(experiment_module(name).METRICS)
 
 
-def run_case(scenario: Scenario, instrument: Instrument, store: DatasetStore) -> dict:
+def writes_points(experiment: str) -> bool:
+    """Whether an experiment writes a per-point file for each case (its ``run`` takes ``points_path``)."""
+    import inspect
+
+    return "points_path" in inspect.signature(experiment_module(experiment).run).parameters
+
+
+def run_case(scenario: Scenario, instrument: Instrument, store: DatasetStore, points_path: Path | None = None) -> dict:
     """Render (or reuse) the scenario's datasets, measure, score: ``{"metrics", "dims", "coords", "datasets"}``.
 
     ``metrics`` maps a name to a float or a list (a list has the dimensions ``dims[name]`` with coordinates
-    ``coords[dim]``).
+    ``coords[dim]``). ``points_path``: where an experiment that writes per-point files (:func:`writes_points`)
+    writes this case's (``points_file`` in the output names it).
     """
-    return experiment_module(scenario.experiment).run(scenario, instrument, store)
+    module = experiment_module(scenario.experiment)
+    if points_path is not None and writes_points(scenario.experiment):
+        return module.run(scenario, instrument, store, points_path=points_path)
+    return module.run(scenario, instrument, store)
 
 
 def run_case_record(payload: dict) -> dict:
     """Worker entry point: run one case from its JSON payload and write its record atomically.
 
     ``payload``: ``scenario``, ``instrument`` (mappings), ``hash``, ``labels``, ``seed``, ``store`` (folder),
-    ``cases_dir`` (where the record ``<hash>.json`` goes), ``run_id``. A case that raises is recorded with
+    ``cases_dir`` (where the record ``<hash>.json`` goes), ``run_id``, ``points`` (also write the per-point file
+    ``<hash>.points.csv`` where the experiment has one). A case that raises is recorded with
     ``status = "failed"`` and its error (and retried by the next run); it never stops the study.
     """
     import json
@@ -67,10 +79,13 @@ def run_case_record(payload: dict) -> dict:
     record = {"hash": payload["hash"], "labels": payload["labels"], "seed": payload["seed"],
               "scenario": payload["scenario"], "instrument": payload["instrument"], "run_id": payload["run_id"],
               "pid": os.getpid(), "datasets": {p: h for p, (h, _) in dataset_parts(scenario).items()}}
+    points_path = Path(payload["cases_dir"]) / f"{payload['hash']}.points.csv" if payload.get("points") else None
     try:
-        out = run_case(scenario, instrument, store)
+        out = run_case(scenario, instrument, store, points_path)
         record.update(status="ok", metrics=out["metrics"], dims=out.get("dims", {}), coords=out.get("coords", {}),
                       reused=out.get("reused", {}))
+        if out.get("points_file"):
+            record["points_file"] = out["points_file"]     # beside the record, written before it
     except Exception as err:  # noqa: BLE001 - a failed case is recorded with its cause, the study goes on
         record.update(status="failed", error=f"{type(err).__name__}: {err}",
                       traceback=traceback.format_exc(limit=8))

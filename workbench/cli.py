@@ -512,6 +512,9 @@ def _parser() -> argparse.ArgumentParser:
         sw.add_argument("--store", type=Path, default=None,
                         help="dataset store (renders by scenario hash); default $WORKBENCH_STORE or ~/.cache/...")
         sw.add_argument("--quiet", action="store_true", help="no progress bar")
+        sw.add_argument("--no-points", dest="points", action="store_false",
+                        help="no per-point file per case (cases/<hash>.points.csv: u, v, truth, status of every "
+                             "point, for experiments that have one); default: written")
         sw.add_argument("--out", type=Path, required=True,
                         help="output folder (cases/<hash>.json, results.nc, results.csv, report.html); rerun the "
                              "same command to resume")

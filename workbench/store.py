@@ -69,6 +69,19 @@ def stored_render(kind: str, content: dict, render: Callable[[Path], object],
     return store.ensure(kind, hash_of(content), content, render)
 
 
+def dataset_record(kind: str, content: dict, folder: Path | None = None) -> dict:
+    """How a report names the dataset it measured, portably: its kind, the hash of its content (the store
+    folder ``<kind>-<hash>`` on any machine), the content itself (everything that made the images: rerunning the
+    experiment with it renders the same images) and, when given, where this run found it."""
+    from workbench.config import hash_of
+
+    key = hash_of(content)
+    out = {"kind": kind, "hash": key, "store_folder": f"{kind}-{key}", "content": content}
+    if folder is not None:
+        out["found_at"] = str(folder)
+    return out
+
+
 class DatasetStore:
     """Content-addressed datasets under ``root`` (see the module doc)."""
 

@@ -41,12 +41,40 @@ class SweepSummary:
     seconds: float
     out_dir: Path
     records: list
+    points: bool = False        # the cases wrote per-point files (cases/<hash>.points.csv)
 
 
-def case_payload(case: Case, store: DatasetStore, cases_dir: Path, run_id: str) -> dict:
+def case_payload(case: Case, store: DatasetStore, cases_dir: Path, run_id: str, points: bool = True) -> dict:
     return {"scenario": to_dict(case.scenario), "instrument": to_dict(case.instrument), "hash": case.hash,
             "labels": case.labels, "seed": case.seed, "store": str(store.root), "cases_dir": str(cases_dir),
-            "run_id": run_id}
+            "run_id": run_id, "points": bool(points)}
+
+
+def warm_worker() -> dict:
+    """Run on each worker before its first case: compile (or load) the DIC kernels once, so no case's timing
+    carries numba's compilation; returns the worker's process id and the seconds it took."""
+    from measurement.dic.warm import warm_up_kernels
+
+    return {"pid": os.getpid(), "seconds": warm_up_kernels()}
+
+
+def prepare_workers(client, expected: int | None, log=print) -> dict:
+    """Wait for the workers (``expected`` of them, or those the scheduler has), then warm every one of them,
+    with a progress line for each wait; returns ``{"workers", "start_s", "warm_s", "warm_per_worker_s"}``."""
+    start = time.perf_counter()
+    if expected:
+        client.wait_for_workers(expected, timeout=300)
+    workers = len(client.scheduler_info()["workers"])
+    start_s = time.perf_counter() - start
+    log(f"  {workers} Dask worker(s) ready in {start_s:.1f} s; compiling the DIC kernels on each (numba, once per "
+        "worker: up to ~30 s with an empty cache) ...")
+    start = time.perf_counter()
+    warm = client.run(warm_worker)
+    warm_s = time.perf_counter() - start
+    per = {addr: round(r["seconds"], 2) for addr, r in warm.items()}
+    log(f"  kernels ready on {len(per)} worker(s) in {warm_s:.1f} s (slowest {max(per.values(), default=0):.1f} s)")
+    return {"workers": workers, "start_s": round(start_s, 2), "warm_s": round(warm_s, 2), "warm_per_worker_s": per,
+            "warm_pids": sorted(int(r["pid"]) for r in warm.values())}
 
 
 def read_record(path: Path) -> dict | None:
@@ -88,13 +116,18 @@ def start_client(scheduler: str | None, workers: int):
 
 
 def run_sweep(study: Study, out_dir: str | Path, *, store: DatasetStore | None = None, scheduler: str | None = None,
-              workers: int = 2, progress: bool = True, client=None) -> SweepSummary:
+              workers: int = 2, progress: bool = True, client=None, points: bool = True) -> SweepSummary:
     """Run every case of ``study`` not yet recorded in ``out_dir/cases`` and return the summary.
 
     ``client``: an existing ``distributed.Client`` to use (then ``scheduler``/``workers`` are ignored).
+    ``points``: each case of an experiment that has per-point files writes ``cases/<hash>.points.csv`` (a finished
+    case without one is run again). Before the first case every worker compiles the DIC kernels once, with a
+    progress line (:func:`prepare_workers`).
     """
     from distributed import as_completed
     from tqdm import tqdm
+
+    from workbench.cases import writes_points
 
     out_dir = Path(out_dir)
     cases_dir = out_dir / "cases"
@@ -108,6 +141,11 @@ def run_sweep(study: Study, out_dir: str | Path, *, store: DatasetStore | None =
         raise ValueError(f"{study.source}: two cases of the study are identical (same scenario and instrument); "
                          "check the axes and seeds")
     done = finished_records(cases_dir, hashes)
+    points = bool(points and writes_points(study.scenario.experiment))
+    if points:
+        # a case finished without its per-point file (an earlier run with --no-points) is run again
+        done = {h: r for h, r in done.items() if (cases_dir / str(r.get("points_file", ""))).is_file()
+                and r.get("points_file")}
     todo = [c for c in cases if c.hash not in done]
     run_id = uuid.uuid4().hex[:12]
     start = time.perf_counter()
@@ -117,11 +155,15 @@ def run_sweep(study: Study, out_dir: str | Path, *, store: DatasetStore | None =
     if todo:
         own = client is None
         cluster = None
+        log = (lambda text: print(text, flush=True)) if progress else (lambda text: None)
         if own:
+            where = f"the Dask scheduler {scheduler}" if scheduler else f"{workers} local Dask worker processes"
+            log(f"  starting {where} ...")
             client, cluster = start_client(scheduler, workers)
         try:
-            futures = [client.submit(_run_payload, case_payload(c, store, cases_dir, run_id), key=f"case-{c.hash}-{run_id}",
-                                     pure=False, retries=0) for c in todo]
+            startup = prepare_workers(client, workers if own and not scheduler else None, log)
+            futures = [client.submit(_run_payload, case_payload(c, store, cases_dir, run_id, points),
+                                     key=f"case-{c.hash}-{run_id}", pure=False, retries=0) for c in todo]
             bar = tqdm(total=len(todo), desc=f"sweep {study.name}", unit="case", disable=not progress)
             for future in as_completed(futures):
                 try:
@@ -142,9 +184,10 @@ def run_sweep(study: Study, out_dir: str | Path, *, store: DatasetStore | None =
                 if cluster is not None:
                     cluster.close()
     summary = SweepSummary(len(cases), len(done), len(todo) - failed, failed, time.perf_counter() - start, out_dir,
-                           records)
+                           records, points)
     run = {"study": study.name, "source": study.source, "cases": len(cases), "already_done": len(done),
            "computed": summary.computed, "failed": failed, "seconds": round(summary.seconds, 2), "run_id": run_id,
+           "workers_startup": startup if todo else None,
            "scheduler": scheduler or f"LocalCluster({workers} process workers)",
            "store": str(store.root), "finished_at": time.strftime("%Y-%m-%dT%H:%M:%S%z")}
     write_sweep_log(out_dir / "sweep-log.json", run)

@@ -35,7 +35,9 @@ def _summary_lines(study, summary, scheduler, workers) -> list[str]:
     return [f"{summary.total} cases ({len(study.seeds)} seeds each): {summary.already_done} already done, "
             f"{summary.computed} computed now, {summary.failed} failed; {summary.seconds:.1f} s on {engine}",
             f"dimensions: {', '.join(study.dims)}; experiment {study.scenario.experiment}",
-            "results: results.nc (xarray / NetCDF), results.csv, cases/<hash>.json"]
+            "results: results.nc (xarray / NetCDF), results.csv, cases/<hash>.json"
+            + (" and cases/<hash>.points.csv (per point: u, v, truth, status)" if getattr(summary, "points", False)
+               else "")]
 
 
 def _run(args, study, copy_of=None):
@@ -46,7 +48,7 @@ def _run(args, study, copy_of=None):
     _prepare_out(args.out, copy_of or study)
     _terminate_cleanly()
     summary = run_sweep(study, args.out, store=DatasetStore(args.store), scheduler=args.scheduler,
-                        workers=args.workers, progress=not args.quiet)
+                        workers=args.workers, progress=not args.quiet, points=getattr(args, "points", True))
     return summary, _summary_lines(study, summary, args.scheduler, args.workers), environment_versions()
 
 

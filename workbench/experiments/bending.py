@@ -25,12 +25,13 @@ from measurement.files import atomic_write_text, atomic_writer
 from measurement.image_io import read_grey
 from measurement.rigid import fit_rigid, remove_rigid_motion
 from measurement.stereo_dic import StereoMatchError, measure_state, reference_shape
-from measurement.stereo_io import write_state_csv, write_state_vtk
+from measurement.stereo_io import write_state_vtk
 from measurement.strain import surface_strain, virtual_strain_gauge_px
 from workbench.experiments.bending_scenes import BENDING_LOADS_N, load_bending_truth, render_bending
 from workbench.experiments.calibration import render_content, mc_summary
 from workbench.experiments.rigid_motion import _face_roi, _finite_or_none, _rig_for_name
-from workbench.store import stored_render
+from workbench.store import dataset_record, stored_render
+from workbench.points_with_truth import Alignment, write_alignment, write_points_readme, write_points_with_truth
 from workbench.rigs import scheimpflug_design_report
 
 #: Default strain window (points per side of the least-squares fit): VSG = 14 * 5 + 65 = 135 px (~4.7 mm).
@@ -107,14 +108,19 @@ def reproduce_bending(out_dir: str | Path, *, scale: float = 1.0, rig_name: str 
                             right_ref, settings, roi=roi)
     reference_s = time.perf_counter() - t0
     points_dir = out_dir / "points"
-    write_state_csv(points_dir / "reference.csv", shape)
-    write_state_vtk(points_dir / "reference.vtk", shape)
     grid = shape.grid
     X0_spec, X_true = truth.points_of_interest(np.column_stack([shape.x, shape.y]).astype(float))
     on_face = np.all(np.isfinite(X0_spec), axis=1)
     ok0 = shape.valid & on_face
     # The calibrated left frame may be turned slightly against the true one: align once on the reference shape.
     R_al, t_al = fit_rigid(shape.X_mm[ok0], X_true[0][ok0])
+    alignment = Alignment(R_al, t_al, int(ok0.sum()))
+    write_points_readme(points_dir, "three-point bending", _EXTRA_COLUMNS, _OTHER_FILES)
+    write_alignment(points_dir, alignment)
+    nan3 = np.full((shape.x.size, 3), np.nan)
+    write_points_with_truth(points_dir / "reference.csv", shape, None, X_true[0], X_true[0], on_face, alignment,
+                            _deformation_columns(np.where(ok0[:, None], 0.0, nan3), np.where(on_face[:, None], 0.0, nan3)))
+    write_state_vtk(points_dir / "reference.vtk", shape)
     ref_err = np.linalg.norm(shape.X_mm[ok0] @ R_al.T + t_al - X_true[0][ok0], axis=1)
     X_ref_aligned = shape.X_mm @ R_al.T + t_al
     x_spec_grid, y_spec_grid = _grid(X0_spec[:, 0], grid), _grid(X0_spec[:, 1], grid)
@@ -143,14 +149,14 @@ def reproduce_bending(out_dir: str | Path, *, scale: float = 1.0, rig_name: str 
         removal = remove_rigid_motion(X_ref_aligned, np.where(ok[:, None], X_def_aligned, np.nan))
         strain = surface_strain(_grid(X_ref_aligned, grid), _grid(removal.X1_aligned_mm, grid), window=window)
         strain_s = time.perf_counter() - start
-        write_state_csv(points_dir / f"state_{k:02d}.csv", shape, state)
-        write_state_vtk(points_dir / f"state_{k:02d}.vtk", shape, state)
-
         # Truth: exact displacement of each material point, its exact strain, and the truth through the window.
         U_true = X_true[k] - X_true[0]
         U_meas = state.U_mm @ R_al.T
         err = np.where(ok[:, None], U_meas - U_true, np.nan)
         U_true_def = remove_rigid_motion(X_true[0], np.where(ok[:, None], X_true[k], np.nan)).residual_mm
+        write_points_with_truth(points_dir / f"state_{k:02d}.csv", shape, state, X_true[0], X_true[k], on_face,
+                                alignment, _deformation_columns(removal.residual_mm, U_true_def))
+        write_state_vtk(points_dir / f"state_{k:02d}.vtk", shape, state)
         err_def = np.where(ok[:, None], removal.residual_mm - U_true_def, np.nan)
         E_exact, Q_world, area_exact = truth.strain_truth(X0_spec, k)
         # exact strain expressed in the measured local frame (e1, e2 of each node, aligned frame)
@@ -177,8 +183,8 @@ def reproduce_bending(out_dir: str | Path, *, scale: float = 1.0, rig_name: str 
         na_meas = _neutral_axis_mm(np.where(valid_g, strain.E11, np.nan), y_spec_grid, x_spec_grid)
         na_true = _neutral_axis_mm(np.where(np.isfinite(E_exact_g[..., 0, 0]), E_exact_g[..., 0, 0], np.nan),
                                    y_spec_grid, x_spec_grid)
-        _write_strain_csv(points_dir / f"strain_{k:02d}.csv", grid, strain, _grid(mag_exact, grid),
-                          _grid(area_exact, grid))
+        _write_strain_csv(points_dir / f"strain_{k:02d}.csv", grid, strain, E_exact_g, _grid(mag_exact, grid),
+                          _grid(area_exact, grid), E_filt, filtered, valid_g)
         row = {"state": k, "load_N": load, "points": int(ok.sum()), "points_total": int(ok.size),
                "stereo_s": round(stereo_s, 2), "strain_s": round(strain_s, 3),
                "median_residual_px": float(np.nanmedian(state.residual_px[ok])),
@@ -211,7 +217,8 @@ def reproduce_bending(out_dir: str | Path, *, scale: float = 1.0, rig_name: str 
                           "U": (_grid(removal.residual_mm, grid), _grid(U_true_def, grid)),
                           "strain": (strain.magnitude, filtered.magnitude, mag_exact_g),
                           "area": (strain.area_change, filtered.area_change, _grid(area_exact, grid))}
-    metrics = {"rig": rig_name, "calibration": rig_text, "images": str(images), "lens": lens, "scale": scale,
+    metrics = {"rig": rig_name, "calibration": rig_text, "images": str(images),
+               "images_dataset": dataset_record("bending", content, images), "lens": lens, "scale": scale,
                **render_content(spp, mc_target_grey), "render_mc": mc_summary(truth.info["render"].get("mc", [])),
                "noise_grey": noise_grey, "subset_px": subset_size, "step_px": step,
                "strain_window": window if window is not None else "per-triangle (Cosserat point elements)",
@@ -261,16 +268,48 @@ class _FacePoses:
         self.specimen, self.poses, self.specs, self.project = truth.specimen, [truth.pose], truth.specs, truth.project
 
 
-def _write_strain_csv(path: Path, grid, strain, magnitude_exact, area_exact) -> None:
-    """Per-node strain: grid position, left-image pixel, measured E11 E22 E12, E1 E2, magnitude, area change."""
+#: The bending experiment's columns beyond :mod:`workbench.points_with_truth`'s.
+_EXTRA_COLUMNS = {
+    "Udef_al Vdef_al Wdef_al": "measured deformation: the aligned measurement with the mean rigid-body motion of the "
+                               "converged points on the specimen removed (paper §3) | true left camera | mm",
+    "Udef_true Vdef_true Wdef_true": "the truth with the rigid motion of the same points removed | true left camera | mm",
+}
+_OTHER_FILES = {
+    "strain_KK.csv": "per grid node (`row`, `col`, pixel `x`, `y`): measured Green-Lagrange strain `E11 E22 E12` in "
+                     "the node's local surface frame (e1, e2), principal `E1 E2`, `magnitude`, `area_change`; the exact "
+                     "FE strain in the same frame (`E11_exact E22_exact E12_exact`, `magnitude_exact`, "
+                     "`area_change_exact`); the exact motion through the same strain window (`*_filtered`: the "
+                     "truth the report's strain RMSE is measured against); `scored` = 1 where the node counts",
+}
+
+
+def _deformation_columns(measured_mm: np.ndarray, true_mm: np.ndarray) -> dict[str, np.ndarray]:
+    out = {}
+    for j, axis in enumerate("UVW"):
+        out[f"{axis}def_al"] = measured_mm[:, j]
+    for j, axis in enumerate("UVW"):
+        out[f"{axis}def_true"] = true_mm[:, j]
+    return out
+
+
+def _write_strain_csv(path: Path, grid, strain, E_exact, magnitude_exact, area_exact, E_filtered, filtered,
+                      scored) -> None:
+    """Per-node strain: grid position, left-image pixel, measured E11 E22 E12, E1 E2, magnitude, area change; the
+    exact strain in the same local frame and the exact motion through the same window; the scored mask."""
     with atomic_writer(path, "w", newline="") as handle:
         w = csv.writer(handle)
         w.writerow(["row", "col", "x", "y", "E11", "E22", "E12", "E1", "E2", "magnitude", "area_change",
-                    "magnitude_exact", "area_change_exact"])
+                    "E11_exact", "E22_exact", "E12_exact", "magnitude_exact", "area_change_exact",
+                    "E11_filtered", "E22_filtered", "E12_filtered", "magnitude_filtered", "area_change_filtered",
+                    "scored"])
         for i in range(grid.shape[0]):
             for j in range(grid.shape[1]):
                 w.writerow([i, j, int(grid.x[i, j]), int(grid.y[i, j])]
                            + [f"{v:.6e}" for v in (strain.E11[i, j], strain.E22[i, j], strain.E12[i, j],
                                                    strain.E1[i, j], strain.E2[i, j], strain.magnitude[i, j],
-                                                   strain.area_change[i, j], magnitude_exact[i, j],
-                                                   area_exact[i, j])])
+                                                   strain.area_change[i, j], E_exact[i, j, 0, 0], E_exact[i, j, 1, 1],
+                                                   E_exact[i, j, 0, 1], magnitude_exact[i, j], area_exact[i, j],
+                                                   E_filtered[i, j, 0, 0], E_filtered[i, j, 1, 1],
+                                                   E_filtered[i, j, 0, 1], filtered.magnitude[i, j],
+                                                   filtered.area_change[i, j])]
+                           + [int(bool(scored[i, j]))])

@@ -32,7 +32,7 @@ from scenes.noise import SensorNoise
 from scenes.targets import Checkerboard
 from workbench.experiments.checkerboard_views import board_outline_mm, write_checkerboard_dataset
 from workbench.manifest import save_figure
-from workbench.store import stored_render
+from workbench.store import dataset_record, stored_render
 from workbench.poses import random_board_poses
 from workbench.rigs import StereoRig, get_rig, paper_values
 
@@ -157,6 +157,7 @@ def reproduce_calibration(out_dir: Path, *, scale: float = 1.0, seed: int = 0, s
                **render_content(spp, mc_target_grey), "render_mc": mc_summary([im.get("mc") for im in truth["images"]]),
                "noise_grey": noise_grey, "calibration_views": n_calibration, "validation_views": n_validation,
                "render_s": "reused" if reused else round(t_render, 1), "images": str(images),
+               "images_dataset": dataset_record("checkerboard", content, images),
                "datasheet_tilt_deg": tilt_guess, "rig": rig_name,
                "truth": {s: rig.camera(s).intrinsics() for s in ("left", "right")}, "models": {}}
     # Detect once; every model calibrates from the same corners (detection at 5 MP takes ~3 s per image).

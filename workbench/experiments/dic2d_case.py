@@ -152,8 +152,36 @@ def shape_function_floor_px(clean_reference: np.ndarray, x: np.ndarray, y: np.nd
     return out
 
 
-def measure(scenario: Scenario, instrument: Instrument, folder: Path) -> dict:
-    """Run the instrument on the stored pair and score u against the imposed shift."""
+#: Columns of a case's per-point file (:func:`write_points`).
+POINT_COLUMNS = ("x", "y", "u", "v", "u_true", "v_true", "error_u", "error_v", "zncc", "iterations", "status",
+                 "status_name", "independent")
+
+
+def write_points(path: Path, result, shift_xy_px, independent: np.ndarray) -> Path:
+    """One row per point of interest: position (px, integer pixel centres), measured u, v, the exact imposed
+    translation, the error, ZNCC, IC-GN iterations, status (a failed point keeps NaN and says why) and whether
+    the point belongs to the non-overlapping sub-grid the random error is taken over. Written atomically."""
+    import csv
+
+    from measurement.dic import Status
+    from measurement.files import atomic_writer
+
+    fmt = lambda v: "nan" if not np.isfinite(v) else f"{v:.9g}"  # noqa: E731
+    sx, sy = (float(v) for v in shift_xy_px)
+    with atomic_writer(path, "w", newline="") as handle:
+        writer = csv.writer(handle)
+        writer.writerow(POINT_COLUMNS)
+        for k in range(result.x.size):
+            writer.writerow([int(result.x[k]), int(result.y[k]), fmt(result.u[k]), fmt(result.v[k]), fmt(sx), fmt(sy),
+                             fmt(result.u[k] - sx), fmt(result.v[k] - sy), fmt(result.zncc[k]),
+                             int(result.iterations[k]), int(result.status[k]), Status(int(result.status[k])).name.lower(),
+                             int(bool(independent[k]))])
+    return path
+
+
+def measure(scenario: Scenario, instrument: Instrument, folder: Path, points_path: Path | None = None) -> dict:
+    """Run the instrument on the stored pair and score u against the imposed shift; ``points_path``: also write
+    the per-point file there (:func:`write_points`)."""
     truth = json.loads((folder / "truth.json").read_text())
     reference = read_grey(folder / truth["files"]["reference"])
     deformed = read_grey(folder / truth["files"]["deformed"])
@@ -183,6 +211,8 @@ def measure(scenario: Scenario, instrument: Instrument, folder: Path) -> dict:
     predicted = float(np.sqrt(np.mean(pan ** 2)))
     predicted_full = float(np.sqrt(np.mean(full ** 2)))
     random = float(np.std(error[sel]))
+    if points_path is not None:
+        write_points(points_path, result, (sx, sy), independent)
     return {"bias_px": float(np.mean(error[ok])), "random_error_px": random,
             "rms_error_px": float(np.sqrt(np.mean(error[ok] ** 2))), "predicted_error_px": predicted,
             "ratio_to_floor": random / predicted if predicted > 0 else float("nan"),
@@ -216,11 +246,15 @@ def check(scenario: Scenario, instrument: Instrument | None = None) -> None:
                          f"instrument.subset_px = {instrument.subset_px}")
 
 
-def run(scenario: Scenario, instrument: Instrument, store) -> dict:
-    """Study entry point: the stored pair (rendered once per scenario content), measured and scored."""
+def run(scenario: Scenario, instrument: Instrument, store, points_path: Path | None = None) -> dict:
+    """Study entry point: the stored pair (rendered once per scenario content), measured and scored;
+    ``points_path``: the per-point file of the case (u, v, truth, status per point)."""
     from workbench.scenario import dataset_parts
 
     key, content = dataset_parts(scenario)["images"]
     folder, reused = store.ensure(KIND, key, content, lambda f: render_dataset(scenario, f))
-    metrics = measure(scenario, instrument, folder)
-    return {"metrics": metrics, "dims": {}, "coords": {}, "reused": {"images": reused}}
+    metrics = measure(scenario, instrument, folder, points_path)
+    out = {"metrics": metrics, "dims": {}, "coords": {}, "reused": {"images": reused}}
+    if points_path is not None:
+        out["points_file"] = Path(points_path).name
+    return out

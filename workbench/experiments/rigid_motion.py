@@ -23,12 +23,13 @@ from measurement.files import atomic_write_text
 from measurement.image_io import read_grey
 from measurement.rigid import fit_rigid
 from measurement.stereo_dic import StereoMatchError, measure_state, reference_shape
-from measurement.stereo_io import write_state_csv, write_state_vtk
+from measurement.stereo_io import write_state_vtk
 from scenes.motion import stage_states_mm
 from workbench.experiments.calibration import render_content, mc_summary
 from workbench.experiments.rigid_motion_scenes import load_truth, render_rigid_motion
 from workbench.manifest import save_figure
-from workbench.store import stored_render
+from workbench.store import dataset_record, stored_render
+from workbench.points_with_truth import Alignment, write_alignment, write_points_readme, write_points_with_truth
 from workbench.rigs import get_rig, paper_values
 
 
@@ -120,9 +121,6 @@ def measure_rigid_motion(truth, images: Path, rig: CalibratedRig, *, subset_size
     right_ref = read_grey(images / truth.files[0]["right"])
     shape = reference_shape(rig.left, rig.right, rig.R_right_from_left, rig.T_right_from_left_mm, left_ref,
                             right_ref, settings, roi=roi)
-    if points_dir is not None:
-        write_state_csv(points_dir / "reference.csv", shape)
-        write_state_vtk(points_dir / "reference.vtk", shape)
     _, X_true = truth.points_of_interest(np.column_stack([shape.x, shape.y]).astype(float))
     on_face = np.isfinite(X_true[0]).all(axis=1)
 
@@ -132,6 +130,14 @@ def measure_rigid_motion(truth, images: Path, rig: CalibratedRig, *, subset_size
     unaligned = np.linalg.norm(shape.X_mm[ok0] - X_true[0][ok0], axis=1)
     R_al, t_al = fit_rigid(shape.X_mm[ok0], X_true[0][ok0])
     aligned = np.linalg.norm(shape.X_mm[ok0] @ R_al.T + t_al - X_true[0][ok0], axis=1)
+    alignment = Alignment(R_al, t_al, int(ok0.sum()))
+    if points_dir is not None:
+        write_points_readme(points_dir, "rigid-motion", other_files={
+            "summary: the report's figures": "mean error of D per state = mean of `D - D_true` over converged "
+                                             "points on the specimen; std likewise"})
+        write_alignment(points_dir, alignment)
+        write_points_with_truth(points_dir / "reference.csv", shape, None, X_true[0], X_true[0], on_face, alignment)
+        write_state_vtk(points_dir / "reference.vtk", shape)
 
     # DIC noise floor of the left/right match (Pan 2008, read noise of the render) and the pixel footprint on the
     # specimen: their product is the in-plane noise floor a single match puts on a point.
@@ -151,7 +157,8 @@ def measure_rigid_motion(truth, images: Path, rig: CalibratedRig, *, subset_size
             continue
         seconds = time.perf_counter() - start
         if points_dir is not None:
-            write_state_csv(points_dir / f"state_{k:02d}.csv", shape, state)
+            write_points_with_truth(points_dir / f"state_{k:02d}.csv", shape, state, X_true[0], X_true[k], on_face,
+                                    alignment)
             write_state_vtk(points_dir / f"state_{k:02d}.vtk", shape, state)
         ok = state.valid & on_face
         D_true = np.linalg.norm(X_true[k] - X_true[0], axis=1)
@@ -203,7 +210,8 @@ def reproduce_rigid_motion(out_dir: str | Path, *, scale: float = 1.0, calib: st
                  goal_mean_um=_finite_or_none(pm / 10), goal_std_um=_finite_or_none(ps / 3),
                  meets_goal=bool(abs(r["mean_error_um"]) <= pm / 10 and r["std_um"] <= ps / 3)
                  if np.isfinite(pm) else None)
-    metrics = {"calibration": rig_text, "images": str(images), "lens": lens, "scale": scale,
+    metrics = {"calibration": rig_text, "images": str(images),
+               "images_dataset": dataset_record("rigid-motion", content, images), "lens": lens, "scale": scale,
                **render_content(spp, mc_target_grey), "render_mc": mc_summary(truth.info["render"].get("mc", [])),
                "subset_px": subset_size, "step_px": step,
                "roi_px": list(roi), "points": int(shape.x.size), "reference_points_triangulated": int(ok0.sum()),
