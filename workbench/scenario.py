@@ -58,6 +58,9 @@ class RenderConfig:
     electrons_per_grey: float | None = _f(None, "shot noise: sensor gain in electrons per grey level (absent: "
                                                 "no shot noise); 5-50 e-/grey at 8 bit for 10 ke- full well",
                                           min=1e-3, max=1e6)
+    board_renderer: str = _f("auto", "calibration-board views: 'auto' renders the exact box-filtered pixel of the "
+                                     "printed polygons where a view allows it (pinhole, no occlusion; else Mitsuba "
+                                     "at spp), 'mitsuba' always Monte Carlo at spp", choices=("auto", "mitsuba"))
 
 
 @dataclass(frozen=True)
@@ -195,6 +198,10 @@ class Instrument:
             raise ValueError(f"subset_px must be odd, got {self.subset_px}")
 
 
+#: Board renderer choice -> the tag that enters the calibration dataset's hash (a new version of a renderer
+#: that changes its images gets a new tag).
+BOARD_RENDERER_TAGS = {"auto": "exact-polygon/1 else mitsuba", "mitsuba": "mitsuba"}
+
 #: Which sections of a scenario change the images of each dataset it renders.
 DATASET_SECTIONS = {
     "dic2d": {"images": ("experiment", "seed", "render", "speckle", "image2d")},
@@ -210,6 +217,9 @@ def dataset_parts(scenario: Scenario) -> dict[str, tuple[str, dict]]:
     for part, sections in DATASET_SECTIONS[scenario.experiment].items():
         content = {"experiment": scenario.experiment, "part": part, "schema": SCHEMA_VERSION,
                    **{s: data[s] for s in sections if s in data}}
+        if part == "calibration":
+            # which renderer made the board images (the exact renderer's views differ from Monte-Carlo ones)
+            content["board_renderer"] = BOARD_RENDERER_TAGS[scenario.render.board_renderer]
         out[part] = (hash_of(content), content)
     return out
 

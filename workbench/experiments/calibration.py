@@ -94,7 +94,16 @@ def render_content(spp: int, mc_target_grey: float | None) -> dict:
 
 
 def render_text(metrics: dict) -> str:
-    """'64 spp', or the adaptive renders' target and measured Monte-Carlo noise (for report text)."""
+    """'64 spp', or the adaptive renders' target and measured Monte-Carlo noise, or the exact renderer's share
+    (for report text)."""
+    renderers = metrics.get("renderers") or {}
+    exact = renderers.get("exact-polygon", 0)
+    if exact:
+        total = sum(renderers.values())
+        if exact == total:
+            return "exact box-filtered polygons (no Monte-Carlo noise)"
+        rest = render_text({k: v for k, v in metrics.items() if k != "renderers"})
+        return f"exact box-filtered polygons for {exact} of {total} images, {rest} for the others"
     if metrics.get("spp") != "adaptive":
         return f"{metrics['spp']} spp"
     measured = (metrics.get("render_mc") or {}).get("mc_rms_grey", {}).get("median")
@@ -120,7 +129,7 @@ def mc_summary(records: list) -> dict | None:
 def reproduce_calibration(out_dir: Path, *, scale: float = 1.0, seed: int = 0, spp: int = 64, noise_grey: float = 1.0,
                           n_calibration: int = 30, n_validation: int = 20, models=("rmm", "pinhole"),
                           progress: bool = True, refine_corners: bool = False, rig_name: str = "paper",
-                          store=None, mc_target_grey: float | None = None) -> dict:
+                          store=None, mc_target_grey: float | None = None, renderer: str = "auto") -> dict:
     """Render, calibrate, validate; writes calibration files, ``metrics.json`` and ``report.md``.
 
     The board views are rendered into the dataset store (``store``: a :class:`workbench.store.DatasetStore` or
@@ -129,7 +138,12 @@ def reproduce_calibration(out_dir: Path, *, scale: float = 1.0, seed: int = 0, s
     ``rig_name``: the true rig (:func:`workbench.rigs.get_rig`); boards are rendered through its pinhole (the
     chief-ray geometry that a thin lens shares), its tilt guess from :data:`RIG_TILT_GUESS_DEG`.
     ``mc_target_grey``: adaptive renders (:mod:`scenes.adaptive`) at that Monte-Carlo noise instead of ``spp``.
+    ``renderer``: ``"auto"`` renders every view the exact renderer can make without Monte Carlo
+    (:mod:`scenes.exact_render`), the rest with Mitsuba; ``"mitsuba"`` all with Mitsuba
+    (:data:`workbench.experiments.checkerboard_views.BOARD_RENDERERS`).
     """
+    from workbench.scenario import BOARD_RENDERER_TAGS
+
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     rig = get_rig(rig_name, scale)
@@ -141,10 +155,11 @@ def reproduce_calibration(out_dir: Path, *, scale: float = 1.0, seed: int = 0, s
     content = {"experiment": "calibration", "rig": rig_name, "scale": float(scale), "intrinsics": {
                    s: rig.camera(s).to_dict() for s in ("left", "right")}, "views": n_calibration + n_validation,
                "seed": seed, **render_content(spp, mc_target_grey), "read_noise_grey": float(noise_grey), "bit_depth": 8,
-               "board": {"squares": list(board.squares), "square_mm": board.square_mm}, "poses": "random_board_poses/1"}
+               "board": {"squares": list(board.squares), "square_mm": board.square_mm}, "poses": "random_board_poses/1",
+               "board_renderer": BOARD_RENDERER_TAGS.get(renderer, renderer)}
     images, reused = stored_render("checkerboard", content, lambda folder: write_checkerboard_dataset(
         rig, folder, n_calibration + n_validation, seed, spp=spp, board=board, noise=noise, progress=progress,
-        poses=poses, overwrite=True, mc_target_grey=mc_target_grey), store)
+        poses=poses, overwrite=True, mc_target_grey=mc_target_grey, renderer=renderer), store)
     truth = json.loads((images / "truth.json").read_text())
     t_render = time.perf_counter() - t0
     files = {side: [images / im["file"] for im in truth["images"] if im["camera"] == side]
@@ -155,6 +170,7 @@ def reproduce_calibration(out_dir: Path, *, scale: float = 1.0, seed: int = 0, s
                            if im["camera"] == "left" and im["view"] >= n_calibration])
     metrics = {"scale": scale, "image_size_px": [rig.left.width, rig.left.height], "seed": seed,
                **render_content(spp, mc_target_grey), "render_mc": mc_summary([im.get("mc") for im in truth["images"]]),
+               "renderers": truth["render"].get("renderers", {"mitsuba": len(truth["images"])}),
                "noise_grey": noise_grey, "calibration_views": n_calibration, "validation_views": n_validation,
                "render_s": "reused" if reused else round(t_render, 1), "images": str(images),
                "images_dataset": dataset_record("checkerboard", content, images),

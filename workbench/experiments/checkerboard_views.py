@@ -63,9 +63,32 @@ def sensor_spec_for(rig: StereoRig, side: str, **lens) -> SensorSpec:
     return camera_to_sensor_spec(rig.camera(side), rig.pixel_pitch_mm, **lens)
 
 
+#: Renderers of board views: "auto" (exact where the view allows it, else Mitsuba), "exact" (refuse otherwise),
+#: "mitsuba" (Monte Carlo: fixed spp or adaptive).
+BOARD_RENDERERS = ("auto", "exact", "mitsuba")
+
+
+def _render_exact(specs: dict, rig: StereoRig, surface, bit_depth: int, view: int, renderer: str):
+    """Both cameras' exact renders of one view ({side: (image, extra)}), or None when a camera cannot be rendered
+    exactly and ``renderer == "auto"`` (the reason is returned for the record)."""
+    from scenes.exact_render import NotExactError, render_view_exact
+
+    out = {}
+    for side in ("left", "right"):
+        try:
+            image, info = render_view_exact(specs[side], *rig.pose(side), [surface],
+                                            exposure_grey=EXPOSURE_GREY[bit_depth])
+        except NotExactError as err:
+            if renderer == "exact":
+                raise ValueError(f"view {view}, {side} camera: the exact renderer cannot render it: {err}") from None
+            return None, f"{side} camera: {err}"
+        out[side] = (image, {"renderer": info["renderer"]})
+    return out, None
+
+
 def render_board_views(rig: StereoRig, board: Checkerboard, poses, *, spp: int = 64, seed: int = 0,
                        bit_depth: int = 8, progress: bool = True, lens_terms: dict | None = None,
-                       mc_target_grey: float | None = None):
+                       mc_target_grey: float | None = None, renderer: str = "auto"):
     """Render every pose in both cameras; yields :class:`BoardView` (noise-free images).
 
     ``poses``: list of ``(R_world_from_board, t_world_from_board_mm)``. A pose whose board leaves an image
@@ -75,17 +98,24 @@ def render_board_views(rig: StereoRig, board: Checkerboard, poses, *, spp: int =
     true lenses that the rig's model lacks (``k3``, ``s1``-``s4``); the truth pixels are then projected by the
     truth side's camera (:func:`scenes.truth.project_points`). ``mc_target_grey``: render both cameras of a view
     from one scene with :mod:`scenes.adaptive` at that Monte-Carlo noise (``spp`` is then unused); the measured
-    noise and sample counts are in ``BoardView.extra["mc"]``.
+    noise and sample counts are in ``BoardView.extra["mc"]``. ``renderer`` (:data:`BOARD_RENDERERS`): ``"auto"``
+    renders each view exactly (:mod:`scenes.exact_render`: the box-filtered pixel of the printed polygons, no
+    Monte-Carlo noise) where it can and with Mitsuba otherwise (a bowed board that occludes itself, ...);
+    ``BoardView.extra["renderer"]`` says which made the image, ``extra["fallback"]`` why Mitsuba did.
     """
     from scenes.truth import project_points
 
+    if renderer not in BOARD_RENDERERS:
+        raise ValueError(f"board renderer {renderer!r}: choose one of {', '.join(BOARD_RENDERERS)}")
     corners_board = board.true_corners_board_mm()
     for view, (R_wb, t_wb) in enumerate(tqdm(poses, desc="rendering board views", disable=not progress)):
         check_in_view(board_outline_mm(board) @ np.asarray(R_wb).T + t_wb, rig, what=f"board of view {view}")
         surface = board.surface(R_wb, t_wb)
         specs = {side: sensor_spec_for(rig, side, **(lens_terms or {})) for side in ("left", "right")}
+        exact, fallback = (None, None) if renderer == "mitsuba" else _render_exact(specs, rig, surface, bit_depth,
+                                                                                 view, renderer)
         adaptive = None
-        if mc_target_grey is not None:
+        if exact is None and mc_target_grey is not None:
             from scenes.adaptive import AdaptiveSettings, render_views_adaptive
             adaptive = render_views_adaptive([(specs[side], rig.pose(side)) for side in ("left", "right")], [surface],
                                              seed=seed * 100003 + 2 * view, exposure_grey=EXPOSURE_GREY[bit_depth],
@@ -94,11 +124,15 @@ def render_board_views(rig: StereoRig, board: Checkerboard, poses, *, spp: int =
             R_cw, t_cw = rig.pose(side)
             R_cb, t_cb = R_cw @ R_wb, R_cw @ t_wb + t_cw
             spec = specs[side]
-            if adaptive is None:
+            if exact is not None:
+                image, extra = exact[side]
+            elif adaptive is None:
                 image, extra = render_view(spec, R_cw, t_cw, [surface], spp=spp, seed=seed * 100003 + 2 * view + k,
-                                           exposure_grey=EXPOSURE_GREY[bit_depth]).image_grey, {}
+                                           exposure_grey=EXPOSURE_GREY[bit_depth]).image_grey, {"renderer": "mitsuba"}
             else:
-                image, extra = adaptive[k].image_grey, {"mc": adaptive[k].mc}
+                image, extra = adaptive[k].image_grey, {"mc": adaptive[k].mc, "renderer": "mitsuba-adaptive"}
+            if fallback is not None:
+                extra["fallback"] = fallback
             points = corners_board @ R_cb.T + t_cb
             pixels = (project_points(spec, np.eye(3), np.zeros(3), points) if lens_terms
                       else rig.camera(side).project(points))
@@ -109,7 +143,7 @@ def write_checkerboard_dataset(rig: StereoRig, out_dir: Path, n_views: int, seed
                                board: Checkerboard | None = None, noise: SensorNoise | None = None,
                                image_format: str = "png", progress: bool = True, poses=None,
                                overwrite: bool = False, lens_terms: dict | None = None,
-                               mc_target_grey: float | None = None) -> dict:
+                               mc_target_grey: float | None = None, renderer: str = "auto") -> dict:
     """Render ``n_views`` random stereo poses (or the given ``poses``) and write images, ``truth.json`` and
     ``manifest.json`` (:mod:`workbench.manifest`; truth and manifest last: a folder with a manifest is complete).
 
@@ -128,7 +162,8 @@ def write_checkerboard_dataset(rig: StereoRig, out_dir: Path, n_views: int, seed
     prepare_folder(out_dir, "checkerboard", names + ["truth.json"], overwrite=overwrite)
     images = []
     for bv in render_board_views(rig, board, poses, spp=spp, seed=seed, bit_depth=noise.bit_depth or 8,
-                                 progress=progress, lens_terms=lens_terms, mc_target_grey=mc_target_grey):
+                                 progress=progress, lens_terms=lens_terms, mc_target_grey=mc_target_grey,
+                                 renderer=renderer):
         name = f"{bv.camera}_{bv.view:03d}.{extension}"
         noisy = noise.apply(bv.image_grey, seed=seed * 100003 + 2 * bv.view + (bv.camera == "right"))
         atomic_write_image(out_dir / name, to_image_dtype(noisy, noise.bit_depth or 8))
@@ -140,6 +175,8 @@ def write_checkerboard_dataset(rig: StereoRig, out_dir: Path, n_views: int, seed
             "points_cam_mm": bv.points_cam_mm.tolist(),
             "pixels": bv.pixels.tolist(),
             **({"mc": bv.extra["mc"]} if "mc" in bv.extra else {}),
+            "renderer": bv.extra.get("renderer", "mitsuba"),
+            **({"renderer_fallback": bv.extra["fallback"]} if "fallback" in bv.extra else {}),
         })
     truth = {
         "about": "Ground truth of rendered checkerboard views. Pixels follow OpenCV (pixel centres at integer "
@@ -156,7 +193,10 @@ def write_checkerboard_dataset(rig: StereoRig, out_dir: Path, n_views: int, seed
                                         "corner_noise_seed": board.corner_noise_seed},
                       "true_corners_board_mm": board.true_corners_board_mm().tolist()})},
         **({"true_lens_terms": {k: float(v) for k, v in lens_terms.items()}} if lens_terms else {}),
-        "render": {"spp": "adaptive" if mc_target_grey is not None else spp,
+        "render": {"renderer": renderer,
+                   "renderers": {name: sum(im["renderer"] == name for im in images)
+                                 for name in sorted({im["renderer"] for im in images})},
+                   "spp": "adaptive" if mc_target_grey is not None else spp,
                    **({"mc_target_grey": float(mc_target_grey)} if mc_target_grey is not None else {}),
                    "seed": seed, "bit_depth": noise.bit_depth,
                    "read_noise_grey": noise.read_noise_grey, "electrons_per_grey": noise.electrons_per_grey},

@@ -29,9 +29,19 @@ def patch_half_size_px(rig: StereoRig, board: Checkerboard) -> int:
     return int(np.clip(0.4 * square_px, 3, 10))
 
 
+def _how(summary: dict) -> str:
+    """How the views were rendered, for the report's text."""
+    if summary.get("renderer") == "exact":
+        return "exact box-filtered polygons (scenes.exact_render, no Monte Carlo)"
+    return f"{summary['spp']} spp (stratified, Mitsuba)"
+
+
 def measure_agreement(rig: StereoRig, n_views: int = 2, seed: int = 0, spp: int | str = 256, supersample: int = 12,
-                      progress: bool = True) -> dict:
+                      progress: bool = True, renderer: str = "mitsuba") -> dict:
     """Render ``n_views`` random board poses in both cameras and fit every inner corner.
+
+    ``renderer``: ``"mitsuba"`` (the sensor plugin, Monte Carlo) or ``"exact"`` (:mod:`scenes.exact_render`):
+    either renderer's agreement with the instrument's camera model.
 
     Returns a dict with per-camera offsets (N, 2) and summary statistics, plus the OpenCV detector's error
     on the same images for comparison.
@@ -47,7 +57,7 @@ def measure_agreement(rig: StereoRig, n_views: int = 2, seed: int = 0, spp: int 
     # spp "adaptive:<grey>": the cropped, adaptively sampled renderer (scenes.adaptive) at that MC noise target
     target = float(str(spp).split(":", 1)[1]) if str(spp).startswith("adaptive:") else None
     for bv in render_board_views(rig, board, poses, spp=256 if target else spp, seed=seed, progress=progress,
-                                 mc_target_grey=target):
+                                 mc_target_grey=target, renderer=renderer):
         t_render += time.perf_counter() - t0
         t1 = time.perf_counter()
         fits = fit_corners(bv.image_grey, rig.camera(bv.camera), pattern, bv.R_cam_from_board,
@@ -65,7 +75,8 @@ def measure_agreement(rig: StereoRig, n_views: int = 2, seed: int = 0, spp: int 
             d["detector"].append(err)
         t0 = time.perf_counter()
     summary = {"rig": rig.name, "image_size_px": [rig.left.width, rig.left.height], "views": n_views,
-               "spp": spp, "seed": seed, "analytic_supersample": supersample, "patch_half_size_px": h,
+               "spp": spp if renderer == "mitsuba" else None, "renderer": renderer, "seed": seed,
+               "analytic_supersample": supersample, "patch_half_size_px": h,
                "render_s": round(t_render, 2), "fit_s": round(t_fit, 2),
                "goal_mean_px": GOAL_MEAN_PX, "goal_max_px": GOAL_MAX_PX, "cameras": {}}
     for side, d in per_camera.items():
@@ -90,7 +101,7 @@ def summary_lines(summary: dict) -> list[str]:
     """Human-readable lines: one per camera, model agreement next to the OpenCV detector."""
     w, h = summary["image_size_px"]
     lines = [f"render <-> model agreement, {summary['rig']} rig at {w} x {h} px, {summary['views']} views, "
-             f"{summary['spp']} spp (goal: mean <= {GOAL_MEAN_PX} px, max <= {GOAL_MAX_PX} px)"]
+             f"{_how(summary)} (goal: mean <= {GOAL_MEAN_PX} px, max <= {GOAL_MAX_PX} px)"]
     for side, e in summary["cameras"].items():
         det = e["opencv_sb"]
         det_s = (f"OpenCV findChessboardCornersSB: mean {det['mean_px']:.4f} px, max {det['max_px']:.4f} px"
@@ -138,7 +149,7 @@ def write_agreement_report(summary: dict, out_dir: Path) -> None:
         lines.append(f"| {side} | {e['corners']} | {e['mean_px']:.4f} | {e['max_px']:.4f} | "
                      f"{'met' if e['meets_goal'] else '**missed**'} | {det.get('mean_px', float('nan')):.4f} | "
                      f"{det.get('max_px', float('nan')):.4f} |")
-    lines += ["", f"Image {w} × {h} px, {summary['views']} stereo views, {summary['spp']} spp (stratified), "
+    lines += ["", f"Image {w} × {h} px, {summary['views']} stereo views, {_how(summary)}, "
               f"analytic patch {2 * summary['patch_half_size_px'] + 1} px square with "
               f"{summary['analytic_supersample']}² samples per pixel. Render {summary['render_s']} s, "
               f"fit {summary['fit_s']} s.", "", "![offsets](agreement.png)", ""]

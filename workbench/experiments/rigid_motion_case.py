@@ -86,7 +86,7 @@ def render_calibration_views(scenario: Scenario, folder: Path) -> None:
                                max_tilt_deg=scenario.target.max_tilt_deg)
     write_checkerboard_dataset(rig, folder, n, scenario.seed, spp=scenario.render.spp, board=board,
                                noise=_noise(scenario), progress=False, poses=poses, overwrite=True,
-                               lens_terms=lens_terms(scenario))
+                               lens_terms=lens_terms(scenario), renderer=scenario.render.board_renderer)
 
 
 def states_mm(scenario: Scenario) -> np.ndarray:

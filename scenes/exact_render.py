@@ -1,0 +1,201 @@
+"""Deterministic renders of piecewise-constant surfaces: the exact box-filtered pixel, no Monte Carlo.
+
+A pinhole camera sees a printed target (checkerboard, ChArUco, dot grid: a ``"nearest"``-filtered texture on a
+triangle mesh) as a picture that is constant on polygons. The value Mitsuba's box-filtered film converges to is
+the mean radiance over each pixel's square on the sensor, i.e. the sum over the picture's polygons of radiance
+times the fraction of the pixel each covers. This module computes that sum exactly:
+
+1. every triangle is cut along its texels' boundaries into polygons of one radiance (clipping in texture
+   space, mapped to the world by the triangle's affine map);
+2. every polygon edge is projected by the truth side's camera (:func:`scenes.truth.project_points`: the same
+   tilted sensor and lens distortion as the Mitsuba sensor plugin), split into as many straight pieces as keep
+   the projected curve within ``chord_tol_px`` of its chords (distortion bends straight edges);
+3. :func:`scenes.coverage_raster.accumulate_flat` adds radiance x exact covered area per pixel.
+
+What it cannot render exactly is refused with :class:`NotExactError` naming the reason, for the caller to fall
+back to Mitsuba: a thin lens (defocus), a smoothly interpolated texture, surfaces that overlap in the image
+(occlusion: detected exactly, as a pixel covered more than once), a surface reaching behind the camera. The
+agreement with Mitsuba is measured, not assumed (``tests/test_exact_render.py``).
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from scenes.camera import SensorSpec
+from scenes.coverage_raster import accumulate_flat
+from scenes.surfaces import TexturedSurface
+
+#: Name recorded with every image this module makes.
+RENDERER = "exact-polygon"
+#: Largest distance allowed between a projected edge and its straight pieces, px.
+CHORD_TOL_PX = 1e-4
+#: Coverage above 1 by more than this means two surfaces overlap in the image.
+OVERLAP_TOL = 1e-6
+
+
+class NotExactError(ValueError):
+    """A view this renderer cannot make exactly; the message says why (the caller falls back to Mitsuba)."""
+
+
+def _clip_polygon(poly: np.ndarray, a: np.ndarray, b: np.ndarray, inside_sign: float) -> np.ndarray:
+    """Sutherland-Hodgman: the part of ``poly`` (K, 2) on the ``inside_sign`` side of the line a -> b."""
+    if len(poly) == 0:
+        return poly
+    d = b - a
+    side = inside_sign * (d[0] * (poly[:, 1] - a[1]) - d[1] * (poly[:, 0] - a[0]))
+    out = []
+    n = len(poly)
+    for i in range(n):
+        j = (i + 1) % n
+        p, q, sp, sq = poly[i], poly[j], side[i], side[j]
+        if sp >= 0:
+            out.append(p)
+        if (sp >= 0) != (sq >= 0):
+            t = sp / (sp - sq)
+            out.append(p + t * (q - p))
+    return np.array(out) if out else np.zeros((0, 2))
+
+
+def _texel_polygons(surface: TexturedSurface, faces: np.ndarray) -> tuple[list[np.ndarray], np.ndarray, np.ndarray]:
+    """World polygons of one radiance: each triangle of ``faces`` cut along its texels (nearest filter).
+
+    Returns the polygons (K, 3) in mm, their radiance and the index of the triangle each came from. A triangle
+    inside one texel (every face of a per-square patch mesh) is one polygon; only those spanning texels are cut.
+    """
+    tex = np.asarray(surface.texture, dtype=np.float64)
+    rows, cols = tex.shape
+    V = np.asarray(surface.vertices_mm, dtype=np.float64)
+    T_all = np.asarray(surface.uv, dtype=np.float64)[faces] * np.array([cols, rows])   # (F, 3, 2), texel units
+    lo = np.clip(np.floor(T_all.min(axis=1) + 1e-9).astype(int), 0, [cols - 1, rows - 1])
+    hi = np.clip(np.floor(T_all.max(axis=1) - 1e-9).astype(int), 0, [cols - 1, rows - 1])
+    single = np.all(lo == hi, axis=1)
+    polys = list(V[faces[single]])
+    values = list(tex[lo[single, 1], lo[single, 0]])
+    owner = list(np.flatnonzero(single))
+    for f_index in np.flatnonzero(~single):
+        P, T = V[faces[f_index]], T_all[f_index]
+        M = np.column_stack([T[1] - T[0], T[2] - T[0]])
+        if abs(np.linalg.det(M)) < 1e-14:
+            raise NotExactError("a triangle spans several texels with a degenerate texture mapping")
+        Minv = np.linalg.inv(M)
+        e1, e2 = T[1] - T[0], T[2] - T[0]
+        orient = 1.0 if e1[0] * e2[1] - e1[1] * e2[0] > 0 else -1.0
+        # clamp-to-edge: the outermost texels extend to whatever part of the triangle lies beyond them (just
+        # beyond the triangle's box: a far-away bound would cost the clipped points their precision)
+        far_lo, far_hi = T.min(axis=0) - 1.0, T.max(axis=0) + 1.0
+        for r in range(lo[f_index, 1], hi[f_index, 1] + 1):
+            for c in range(lo[f_index, 0], hi[f_index, 0] + 1):
+                x0 = c if c > 0 else min(0.0, far_lo[0])
+                x1 = c + 1 if c < cols - 1 else max(float(cols), far_hi[0])
+                y0 = r if r > 0 else min(0.0, far_lo[1])
+                y1 = r + 1 if r < rows - 1 else max(float(rows), far_hi[1])
+                poly = np.array([[x0, y0], [x1, y0], [x1, y1], [x0, y1]], dtype=np.float64)
+                for k in range(3):
+                    poly = _clip_polygon(poly, T[k], T[(k + 1) % 3], orient)
+                    if len(poly) < 3:
+                        break
+                if len(poly) < 3:
+                    continue
+                bary = (poly - T[0]) @ Minv.T                   # (K, 2): weights of P1 - P0 and P2 - P0
+                polys.append(P[0] + bary[:, :1] * (P[1] - P[0]) + bary[:, 1:] * (P[2] - P[0]))
+                values.append(float(tex[r, c]))
+                owner.append(int(f_index))
+    return polys, np.asarray(values, dtype=np.float64), np.asarray(owner, dtype=np.int64)
+
+
+def _project_outlines(spec: SensorSpec, R: np.ndarray, t: np.ndarray, polys: list[np.ndarray],
+                      chord_tol_px: float) -> tuple[np.ndarray, np.ndarray]:
+    """Every world polygon's outline in pixels, each edge split so its projection stays within the tolerance
+    of its straight pieces; flat: (N, 2) vertices and (P + 1,) starts."""
+    from scenes.truth import project_points
+
+    sizes = np.array([len(p) for p in polys], dtype=np.int64)
+    starts = np.concatenate([[0], np.cumsum(sizes)]).astype(np.int64)
+    A = np.concatenate(polys)
+    nxt = np.arange(len(A)) + 1
+    nxt[starts[1:] - 1] = starts[:-1]
+    B = A[nxt]
+    ends = project_points(spec, R, t, np.concatenate([A, 0.5 * (A + B)]))
+    if not np.all(np.isfinite(ends)):
+        raise NotExactError("a surface reaches behind the camera (or parallel to the sensor)")
+    pa, pm = ends[:len(A)], ends[len(A):]
+    # the sagitta of a smooth projected curve falls as 1 / n^2 with n pieces
+    sagitta = np.linalg.norm(pm - 0.5 * (pa + pa[nxt]), axis=1)
+    pieces = np.maximum(1, np.ceil(np.sqrt(sagitta / chord_tol_px))).astype(np.int64)
+    if np.all(pieces == 1):
+        return pa, starts
+    # edge e contributes its start and pieces[e] - 1 inner points, in order
+    edge = np.repeat(np.arange(len(A)), pieces)
+    k = np.arange(edge.size) - np.repeat(np.cumsum(pieces) - pieces, pieces)
+    s = (k / pieces[edge])[:, None]
+    xy = np.empty((edge.size, 2))
+    first = k == 0
+    xy[first] = pa[edge[first]]
+    inner = ~first
+    xy[inner] = project_points(spec, R, t, A[edge[inner]] + s[inner] * (B[edge[inner]] - A[edge[inner]]))
+    per_polygon = np.add.reduceat(pieces, starts[:-1])
+    return xy, np.concatenate([[0], np.cumsum(per_polygon)]).astype(np.int64)
+
+
+def render_view_exact(spec: SensorSpec, R_cam_from_world: np.ndarray, t_cam_from_world_mm: np.ndarray,
+                      surfaces: list[TexturedSurface], *, exposure_grey: float = 255.0,
+                      chord_tol_px: float = CHORD_TOL_PX) -> tuple[np.ndarray, dict]:
+    """The exact box-filtered image of piecewise-constant ``surfaces`` through a pinhole camera.
+
+    Parameters
+    ----------
+    spec : SensorSpec (``lens == "pinhole"``)
+    R_cam_from_world, t_cam_from_world_mm : the camera pose, ``X_cam = R X_world + t``
+    surfaces : TexturedSurface with ``filter == "nearest"``
+    exposure_grey : grey levels per unit radiance
+
+    Returns
+    -------
+    image_grey : (height, width) float32, noise-free grey levels (0 where no surface is seen)
+    info : dict with ``renderer``, ``polygons``, ``crop`` (x0, y0, width, height) and the largest pixel
+        coverage (1 where a surface covers a whole pixel)
+
+    Raises
+    ------
+    NotExactError
+        When the view is outside what this renderer makes exactly (module docstring).
+    """
+    if spec.lens != "pinhole":
+        raise NotExactError(f"the {spec.lens} lens blurs (defocus): only a pinhole image is piecewise constant")
+    if not surfaces:
+        raise ValueError("nothing to render: no surfaces given")
+    R = np.asarray(R_cam_from_world, dtype=float)
+    t = np.asarray(t_cam_from_world_mm, dtype=float).reshape(3)
+    centre = -R.T @ t
+    polys, values, front = [], [], []
+    for surface in surfaces:
+        if surface.filter != "nearest":
+            raise NotExactError("a smoothly interpolated (bilinear) texture is not piecewise constant")
+        faces = np.asarray(surface.faces, dtype=int)
+        V = np.asarray(surface.vertices_mm, dtype=float)
+        normals = np.cross(V[faces[:, 1]] - V[faces[:, 0]], V[faces[:, 2]] - V[faces[:, 0]])
+        facing = np.einsum("ij,ij->i", normals, centre - V[faces[:, 0]]) > 0   # the emitting side is seen
+        p, v, owner = _texel_polygons(surface, faces)
+        polys += p
+        values.append(v)
+        front.append(facing[owner])
+    values, front = np.concatenate(values), np.concatenate(front)
+    xy, starts = _project_outlines(spec, R, t, polys, chord_tol_px)
+    x0 = int(np.clip(np.floor(xy[:, 0].min()) - 1, 0, spec.width))
+    y0 = int(np.clip(np.floor(xy[:, 1].min()) - 1, 0, spec.height))
+    x1 = int(np.clip(np.ceil(xy[:, 0].max()) + 2, 0, spec.width))
+    y1 = int(np.clip(np.ceil(xy[:, 1].max()) + 2, 0, spec.height))
+    image = np.zeros((spec.height, spec.width), dtype=np.float32)
+    info = {"renderer": RENDERER, "polygons": len(polys), "crop": [x0, y0, x1 - x0, y1 - y0], "max_coverage": 0.0}
+    if x1 <= x0 or y1 <= y0:
+        return image, info
+    shape = (y1 - y0, x1 - x0)
+    coverage = accumulate_flat(xy, starts, np.ones(len(polys)), shape, (x0, y0))
+    info["max_coverage"] = float(coverage.max())
+    if coverage.max() > 1.0 + OVERLAP_TOL:
+        raise NotExactError(f"surfaces overlap in the image (a pixel is covered {coverage.max():.4f} times): "
+                            "occlusion needs ray tracing")
+    weights = np.where(front, values * float(exposure_grey), 0.0)
+    window = accumulate_flat(xy, starts, weights, shape, (x0, y0))
+    image[y0:y1, x0:x1] = window.astype(np.float32)
+    return image, info
