@@ -59,12 +59,48 @@ def test_a_corner_that_is_not_a_saddle_keeps_its_start():
 
 @pytest.fixture(scope="module")
 def full_size_view():
-    """One 2448 x 2048 render of the paper rig's left camera (16 spp), with the true corner pixels."""
+    """One 2448 x 2048 render of the paper rig's left camera (Mitsuba, 16 spp: Monte-Carlo noise on the edges),
+    with the true corner pixels."""
     rig = get_rig("paper", 1.0)
     board = Checkerboard()
     poses = random_board_poses(rig, board_outline_mm(board), 1, seed=11)
-    view = next(iter(render_board_views(rig, board, poses, spp=16, seed=11, progress=False)))
+    view = next(iter(render_board_views(rig, board, poses, spp=16, seed=11, progress=False, renderer="mitsuba")))
     return np.clip(np.rint(view.image_grey), 0, 255).astype(np.uint8), view.pixels
+
+
+def test_the_search_pyramid_finds_the_board_on_the_smallest_copy_and_loses_no_accuracy(full_size_view,
+                                                                                       monkeypatch):
+    """The board is found on the 640 px copy (OpenCV's search costs ~4x less there than at 1280 px) and the
+    full-size refinement gives the same corners as from the 1280 px copy: within 0.005 px of them, RMS error
+    against the truth below 0.05 px. Where the smallest copy fails, the next size is searched."""
+    import measurement.calibration.detection as detection
+
+    image, truth = full_size_view
+    seen = []
+    real = detection.cv2.findChessboardCornersSB
+
+    def spy(gray, *args, **kwargs):
+        seen.append(max(gray.shape))
+        return real(gray, *args, **kwargs)
+
+    monkeypatch.setattr(detection.cv2, "findChessboardCornersSB", spy)
+    pyramid = detect_checkerboard(image, (11, 8))
+    assert seen[0] == 640 and 1280 not in seen
+    monkeypatch.setattr(detection, "DETECT_SEARCH_SIDES_PX", ())
+    only_1280 = detect_checkerboard(image, (11, 8))
+    assert np.max(np.linalg.norm(pyramid - only_1280, axis=1)) < 0.005
+    assert np.sqrt(np.mean(np.sum((pyramid - truth) ** 2, axis=1))) < 0.05
+
+    def blind_below_1000(gray, *args, **kwargs):      # a board too small to be found on the 640 px copy
+        seen.append(max(gray.shape))
+        return (False, None) if max(gray.shape) < 1000 else real(gray, *args, **kwargs)
+
+    monkeypatch.setattr(detection, "DETECT_SEARCH_SIDES_PX", (640, 1280))
+    monkeypatch.setattr(detection.cv2, "findChessboardCornersSB", blind_below_1000)
+    seen.clear()
+    fallback = detect_checkerboard(image, (11, 8))
+    assert 640 in seen and 1280 in seen
+    assert np.max(np.linalg.norm(fallback - only_1280, axis=1)) < 1e-9
 
 
 def test_downscaled_detection_is_as_accurate_as_the_full_size_search(full_size_view):
