@@ -28,3 +28,9 @@ def warm_up_kernels(orders=(1, 2), interpolations=("biquintic", "bicubic")) -> f
             settings = DICSettings(subset_size=15, step=8, order=order, interpolation=interpolation)
             correlate(reference, deformed, settings, roi=(16, 16, 47, 47))
     return time.perf_counter() - start
+
+
+if __name__ == "__main__":
+    # ``python -m measurement.dic.warm``: fill numba's on-disk cache from a separate process (a long job can start
+    # this beside work that does not need the kernels yet, and find them compiled when it does)
+    print(f"DIC kernels ready in {warm_up_kernels():.1f} s")
