@@ -30,6 +30,7 @@ stratification and reuses it for every view, state and seed.
 from __future__ import annotations
 
 import time
+import warnings
 from dataclasses import asdict, dataclass, field
 
 import numpy as np
@@ -369,8 +370,30 @@ def render_views_adaptive(views: list[tuple[SensorSpec, tuple[np.ndarray, np.nda
               "spp_histogram": {int(v): int(c) for v, c in zip(values, counts)},
               "crop": [int(c) for c in box], "crop_fraction": w * h / (spec.width * spec.height),
               "lit_pixels": n_lit, "seconds": time.perf_counter() - t0}
+        missed = _target_missed(mc)
+        mc["target_met"] = missed is None
+        if missed is not None:
+            warnings.warn(f"adaptive render, view {i}: the Monte-Carlo noise target {settings.target_mc_grey:g} grey "
+                          f"RMS was not reached: {missed}", stacklevel=2)
         results.append(AdaptiveRender(image, spp_map, box, mc))
     return results
+
+
+#: Lit pixels that may stay above the target (the allocator's largest stratification not enough) before it is said.
+MISSED_FRACTION = 1e-3
+#: Measured over target beyond which the target counts as missed (the check pixels' estimate scatters by a few %).
+MISSED_RATIO = 1.25
+
+
+def _target_missed(mc: dict) -> str | None:
+    """Why a view's MC noise target was not reached (the budget of ``sides`` too small), or None."""
+    why = []
+    if mc["above_target_fraction"] > MISSED_FRACTION:
+        why.append(f"{100 * mc['above_target_fraction']:.2g} % of the lit pixels would need more samples than the "
+                   f"largest stratification allows (AdaptiveSettings.sides)")
+    if mc["check_pixels"] and mc["mc_rms_grey"] > MISSED_RATIO * mc["target_grey"]:
+        why.append(f"measured {mc['mc_rms_grey']:.3g} grey RMS on {mc['check_pixels']} check pixels")
+    return "; ".join(why) or None
 
 
 def render_view_adaptive(spec: SensorSpec, R_cam_from_world, t_cam_from_world_mm, surfaces: list[TexturedSurface],
