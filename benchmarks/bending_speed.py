@@ -23,9 +23,9 @@ from measurement.image_io import read_grey
 from measurement.rigid import remove_rigid_motion
 from measurement.stereo_dic import measure_state, reference_shape
 from measurement.strain import surface_strain
-from workbench.experiments.bending import _FacePoses, _grid, _overlap_roi
-from workbench.experiments.bending_scenes import load_bending_truth
-from workbench.experiments.rigid_motion import _face_roi
+from workbench.experiments.bending.run import _FacePoses, _grid, _overlap_roi
+from workbench.experiments.bending.scenes import load_bending_truth
+from workbench.experiments.rigid_motion.run import face_roi
 from workbench.rigs import get_rig
 
 
@@ -43,7 +43,7 @@ def main() -> None:
     else:
         rig = load_calibration(args.calib)
     settings = DICSettings(subset_size=65, step=5, order=2)
-    roi = _overlap_roi(truth, _face_roi(_FacePoses(truth), 32), 32, 5)
+    roi = _overlap_roi(truth, face_roi(_FacePoses(truth), 32), 32, 5)
     left_ref = read_grey(args.images / truth.files[0]["left"])
     right_ref = read_grey(args.images / truth.files[0]["right"])
     start = time.perf_counter()

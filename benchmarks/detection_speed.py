@@ -20,7 +20,7 @@ from scenes.exact_render import render_view_exact
 from scenes.noise import SensorNoise, to_image_dtype
 from scenes.targets import Checkerboard
 from scenes.truth import project_points
-from workbench.experiments.checkerboard_views import board_outline_mm, sensor_spec_for
+from workbench.experiments.calibration.views import board_outline_mm, sensor_spec_for
 from workbench.poses import random_board_poses
 from workbench.rigs import get_rig
 

@@ -2,7 +2,7 @@
 
 Both engines run through :func:`workbench.engines.run_engine` (as ``workbench score --engine`` runs them) on
 the same image files of the render store, with the same subset, step and ROI
-(:func:`workbench.tool_cli.engine_roi`), and are scored by :func:`workbench.scoring.score_state` against the
+(:func:`workbench.scoring.datasets.subset_roi_xyxy_px`), and are scored by :func:`workbench.scoring.metrics.score_state` against the
 exact truth:
 
 * ``ours``: ``workbench.engines:ours`` (IC-GN, biquintic B-spline, ZNSSD);
@@ -79,8 +79,8 @@ def scenario_of(case: dict):
 
 def dataset_of(case: dict, store):
     """The case's pair, rendered through the store (or found there)."""
-    from workbench.datasets import open_dataset
-    from workbench.experiments import dic2d_case
+    from workbench.scoring.datasets import open_dataset
+    from workbench.experiments.dic2d import case as dic2d_case
     from workbench.scenario import dataset_parts
 
     scenario = scenario_of(case)
@@ -106,7 +106,7 @@ def cubic_spline_dS(t: float, h: float = 1e-4) -> float:
 def predicted_noise_bias_px(dataset, case: dict, roi) -> dict:
     """pyvale's predicted noise-induced u bias (module docstring), and what goes into it."""
     from measurement.image_io import read_grey
-    from workbench.experiments.dic2d_case import _exact_gradient_x
+    from workbench.experiments.dic2d.case import _exact_gradient_x
 
     clean = read_grey(dataset.folder / "clean_reference.tif").astype(float)
     x0, y0, x1, y1 = roi
@@ -121,7 +121,7 @@ def predicted_noise_bias_px(dataset, case: dict, roi) -> dict:
 def run_one(engine_spec: str, options: dict, dataset, order: int, roi, workdir: Path, tag: str) -> dict:
     from workbench.engines import parse_engine, run_engine
     from workbench.results import read_result
-    from workbench.scoring import score_state
+    from workbench.scoring.metrics import score_state
 
     engine = parse_engine(engine_spec)
     out = workdir / f"{tag}.csv"
@@ -182,13 +182,13 @@ def main(argv=None) -> int:
     import matplotlib.pyplot as plt
     import numba
 
-    from measurement.files import atomic_write_bytes, atomic_write_text
+    from labio.atomic import atomic_write_bytes, atomic_write_text
     from workbench.peers import pyvale_engine
     from workbench.store import DatasetStore
-    from workbench.sweep import environment_versions
-    from workbench.tool_cli import engine_roi
+    from workbench.studies.sweep import environment_versions
+    from workbench.scoring.datasets import subset_roi_xyxy_px
 
-    pyvale_engine._import_pyvale_dic()            # the ~5 s import, and its stray log file, out of the timings
+    pyvale_engine.import_pyvale_dic()            # the ~5 s import, and its stray log file, out of the timings
     import pyvale
 
     store = DatasetStore(args.store)
@@ -197,7 +197,7 @@ def main(argv=None) -> int:
     with tempfile.TemporaryDirectory(prefix="peer-pyvale-") as tmp:
         work = Path(tmp)
         datasets = [(c, dataset_of(c, store)) for c in all_cases]
-        roi = engine_roi(datasets[0][1], SUBSET_PX)
+        roi = subset_roi_xyxy_px(datasets[0][1], SUBSET_PX)
         for label, spec, options in ENGINES:         # warm-up: numba kernels, pyvale's first run
             run_one(spec, options, datasets[0][1], 1, roi, work, "warmup")
         for case, dataset in datasets:
@@ -264,7 +264,7 @@ def main(argv=None) -> int:
         "Written by `benchmarks/peer_pyvale.py` (`.venv-peers/bin/python benchmarks/peer_pyvale.py`). Every "
         "engine runs through `workbench.engines.run_engine` (what `workbench score --engine` does) on the same "
         "image files of the render store, with the same subset, step and ROI, and is scored by "
-        "`workbench.scoring.score_state` against the exact truth (errors of u in px; the shift is along x).", "",
+        "`workbench.scoring.metrics.score_state` against the exact truth (errors of u in px; the shift is along x).", "",
         f"- Pairs: {args.size} x {args.size} px, periodic 4 px Gaussian speckle (grey std 30 of mean 128), exact "
         "Fourier shift along x, seed 0; noise-free pairs as float TIFF.",
         f"- Subset {SUBSET_PX} px, step {STEP_PX} px, ROI of subset centres {tuple(roi)} (inclusive); both "

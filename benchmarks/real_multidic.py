@@ -97,7 +97,7 @@ def source_line(data: Path) -> str:
 # --------------------------------------------------------------------------------------------------------
 def _save_npz(path: Path, **arrays) -> None:
     """np.savez through the atomic writer: an interrupted run leaves no truncated cache behind."""
-    from measurement.files import atomic_write_bytes
+    from labio.atomic import atomic_write_bytes
 
     buf = io.BytesIO()
     np.savez(buf, **arrays)
@@ -536,7 +536,7 @@ def residual_png(path: Path, x, y, r_mm, title: str, size) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from measurement.files import atomic_write_bytes
+    from labio.atomic import atomic_write_bytes
 
     r = r_mm * 1e3
     lim = max(float(np.percentile(np.abs(r), 98)), 1e-3)
@@ -797,7 +797,7 @@ def main(argv=None) -> int:
     text += ["TIME (s): " + ", ".join(f"{k} {v:.0f}" for k, v in r["times_s"].items()) + f", total {total:.0f}",
              f"plot: {r['png'].name}; points: reference_points.npz; calibration: calibration.json; corner cache: "
              "corners_201.npz, corners_202.npz"]
-    from measurement.files import atomic_write_text
+    from labio.atomic import atomic_write_text
 
     atomic_write_text(args.out / "benchmark.txt", "\n".join(text) + "\n")
     atomic_write_text(args.out / "figures.json", json.dumps(

@@ -9,7 +9,7 @@ columns: the 3-D gold is only in ``DICe_solution.e``), and prints per frame the 
 mean / RMS difference (ours - DICe) of the 3-D displacement and of the reference 3-D positions, in um.
 
 DICe's test folder holds ``best_fit_plane.dat``, so DICe's MODEL_* fields are in its best-fit-plane frame, not
-camera 0's: ours (left camera frame) is aligned to it by ONE rigid fit (:func:`workbench.scoring.rigid_fit`) of
+camera 0's: ours (left camera frame) is aligned to it by ONE rigid fit (:func:`workbench.scoring.metrics.rigid_fit`) of
 the reference positions of the common points; the same rotation is applied to our displacements.
 
     python benchmarks/real_sample3.py /work/.mirror/dicengine+dice/repo [--order 1] [--png W_diff.png]
@@ -122,7 +122,7 @@ def main(argv=None) -> int:
 
     from measurement.calibration.formats import load_any_calibration
     from workbench.results import read_result
-    from workbench.scoring import rigid_fit
+    from workbench.scoring.metrics import rigid_fit
 
     tmp = None
     if args.keep is None:
@@ -216,7 +216,7 @@ def main(argv=None) -> int:
             matplotlib.use("Agg")
             import matplotlib.pyplot as plt
 
-            from measurement.files import atomic_write_bytes
+            from labio.atomic import atomic_write_bytes
 
             x, y, dw, k = last_map
             fig, ax = plt.subplots(figsize=(6.4, 4.2), dpi=100)

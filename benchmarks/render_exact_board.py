@@ -21,7 +21,7 @@ from scenes.backend import VARIANT
 from scenes.exact_render import render_view_exact
 from scenes.render import render_view
 from scenes.targets import CharucoBoard, Checkerboard, DotGrid
-from workbench.experiments.checkerboard_views import board_outline_mm, sensor_spec_for
+from workbench.experiments.calibration.views import board_outline_mm, sensor_spec_for
 from workbench.poses import random_board_poses
 from workbench.rigs import get_rig
 

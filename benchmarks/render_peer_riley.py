@@ -51,12 +51,12 @@ ROOT = Path(__file__).resolve().parents[1]
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
-from measurement.files import atomic_write_text  # noqa: E402
+from labio.atomic import atomic_write_text  # noqa: E402
 from scenes.backend import VARIANT  # noqa: E402
 from scenes.render import render_view  # noqa: E402
 from scenes.specimens import SpeckledPlate  # noqa: E402
 from scenes.truth import pixel_rays  # noqa: E402
-from workbench.experiments.checkerboard_views import camera_to_sensor_spec  # noqa: E402
+from workbench.experiments.calibration.views import camera_to_sensor_spec  # noqa: E402
 from workbench.rigs import facing_plane_world, paper_rig  # noqa: E402
 
 EXPOSURE_GREY = 255.0

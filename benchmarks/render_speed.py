@@ -16,7 +16,7 @@ import numpy as np
 from scenes.backend import VARIANT
 from scenes.render import render_view
 from scenes.specimens import SpeckledPlate
-from workbench.experiments.checkerboard_views import camera_to_sensor_spec
+from workbench.experiments.calibration.views import camera_to_sensor_spec
 from workbench.rigs import paper_rig
 
 

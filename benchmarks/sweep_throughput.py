@@ -16,8 +16,8 @@ import time
 from pathlib import Path
 
 from workbench.store import DatasetStore
-from workbench.study import parse_study
-from workbench.sweep import run_sweep, start_client
+from workbench.studies.study import parse_study
+from workbench.studies.sweep import run_sweep, start_client
 
 
 def study(noise: list[float], subsets: list[int], repeats: int, seed0: int = 0):

@@ -15,7 +15,7 @@ Method
    :meth:`~measurement.camera.ScheimpflugCamera.backproject`, which undoes the intrinsics, the Scheimpflug tilt
    and the Brown distortion exactly. The initial estimate is the midpoint of the shortest segment between the
    left and right rays, expressed in the left frame; that segment's length is ``ray_gap_mm``.
-2. *Optimal (reprojection) refinement.* Starting from the midpoint, the point minimising
+2. *Optimal (reprojection) refinement.* Starting from the midpoint, the point minimising::
 
        |project_left(X) - p_left|^2 + |project_right(R X + T) - p_right|^2
 

@@ -1,6 +1,6 @@
 """Writing stereo-DIC results: one CSV and one legacy-VTK point cloud (for ParaView) per state.
 
-Every file is written atomically (:mod:`measurement.files`): whole or not at all, write errors name the file.
+Every file is written atomically (:mod:`labio.atomic`): whole or not at all, write errors name the file.
 """
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 
 from measurement.dic import Status
-from measurement.files import atomic_write_text, atomic_writer
+from labio.atomic import atomic_write_text, atomic_writer
 from measurement.stereo_dic import StereoShape, StereoState
 
 CSV_COLUMNS = ("x", "y", "X", "Y", "Z", "U", "V", "W", "D", "zncc", "residual", "status", "status_name")

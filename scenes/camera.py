@@ -146,6 +146,30 @@ class SensorSpec:
         return asdict(self)
 
 
+def distortion_terms(x, y, lens):
+    """OpenCV's distortion split as ``x_d = x * radial + dx``, ``y_d = y * radial + dy``: the one formula of the
+    truth side, for numpy arrays (:mod:`scenes.truth`) and Dr.Jit arrays (the sensor plugin) alike.
+
+    ``radial = 1 + k1 r^2 + k2 r^4 + k3 r^6``, ``dx = 2 p1 x y + p2 (r^2 + 2 x^2) + s1 r^2 + s2 r^4``,
+    ``dy = p1 (r^2 + 2 y^2) + 2 p2 x y + s3 r^2 + s4 r^4``; ``lens`` has the attributes ``k1, k2, k3, p1, p2,
+    s1..s4`` (a :class:`SensorSpec` or the plugin). The k3 and thin-prism terms are evaluated only when non-zero, so
+    a lens without them gives bit for bit the Brown-only values (and the plugin traces the kernel it traced before
+    they existed; where r^2 overflows, ``0 * inf`` would be NaN).
+    """
+    r2 = x * x + y * y
+    if lens.k3 != 0.0:
+        radial = 1.0 + r2 * (lens.k1 + r2 * (lens.k2 + lens.k3 * r2))
+    else:
+        radial = 1.0 + r2 * (lens.k1 + lens.k2 * r2)
+    dx = 2.0 * lens.p1 * x * y + lens.p2 * (r2 + 2.0 * x * x)
+    dy = lens.p1 * (r2 + 2.0 * y * y) + 2.0 * lens.p2 * x * y
+    if lens.s1 != 0.0 or lens.s2 != 0.0:
+        dx = dx + r2 * (lens.s1 + lens.s2 * r2)
+    if lens.s3 != 0.0 or lens.s4 != 0.0:
+        dy = dy + r2 * (lens.s3 + lens.s4 * r2)
+    return radial, dx, dy
+
+
 def sensor_axes(alpha_deg: float, beta_deg: float) -> np.ndarray:
     """Tilted sensor axes as columns (e1, e2, normal) in the camera frame, from Mitsuba's rotations."""
     rot = mi.ScalarTransform4f().rotate([0, 1, 0], beta_deg) @ mi.ScalarTransform4f().rotate([1, 0, 0], alpha_deg)
@@ -194,29 +218,10 @@ class ScheimpflugSensor(mi.Sensor):
         xd, yd = px / pz, py / pz
         xn, yn = mi.Float(xd), mi.Float(yd)
         for _ in range(self.undistort_iterations):
-            radial, dx, dy = self._distortion_terms(xn, yn)
+            radial, dx, dy = distortion_terms(xn, yn, self)
             xn = (xd - dx) / radial
             yn = (yd - dy) / radial
         return xn, yn, pz
-
-    def _distortion_terms(self, xn, yn):
-        """OpenCV's distortion split as ``x_d = x_n * radial + dx``, ``y_d = y_n * radial + dy`` (Dr.Jit arrays).
-
-        The k3 and thin-prism terms enter the traced kernel only when non-zero, so that a lens without them
-        traces exactly the kernel it traced before they existed (bit-identical renders).
-        """
-        r2 = xn * xn + yn * yn
-        if self.k3 != 0.0:
-            radial = 1.0 + r2 * (self.k1 + r2 * (self.k2 + self.k3 * r2))
-        else:
-            radial = 1.0 + r2 * (self.k1 + self.k2 * r2)
-        dx = 2.0 * self.p1 * xn * yn + self.p2 * (r2 + 2.0 * xn * xn)
-        dy = self.p1 * (r2 + 2.0 * yn * yn) + 2.0 * self.p2 * xn * yn
-        if self.s1 != 0.0 or self.s2 != 0.0:
-            dx = dx + r2 * (self.s1 + self.s2 * r2)
-        if self.s3 != 0.0 or self.s4 != 0.0:
-            dy = dy + r2 * (self.s3 + self.s4 * r2)
-        return radial, dx, dy
 
     def sample_ray(self, time, sample1, sample2, sample3, active=True):
         xn, yn, pz = self._chief_ray(sample2)

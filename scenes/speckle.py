@@ -46,8 +46,8 @@ def texels_for(size_px_at_specimen: float, texels_per_px: float) -> float:
     float
         Speckle diameter in texels.
     """
-    _require_positive_finite(size_px_at_specimen, "size_px_at_specimen")
-    _require_positive_finite(texels_per_px, "texels_per_px")
+    require_positive_finite(size_px_at_specimen, "size_px_at_specimen")
+    require_positive_finite(texels_per_px, "texels_per_px")
     return float(size_px_at_specimen) * float(texels_per_px)
 
 
@@ -81,21 +81,21 @@ def speckle_pattern(shape_texels: tuple[int, int], speckle_size_texels: float, d
         outside, clipped to [0, 1]. The pattern is periodic with period ``(rows, cols)``.
     """
     rows, cols = _check_shape(shape_texels)
-    size = _require_positive_finite(speckle_size_texels, "speckle_size_texels")
+    size = require_positive_finite(speckle_size_texels, "speckle_size_texels")
     if size < MIN_SPECKLE_SIZE_TEXELS:
         raise ValueError(
             f"speckle_size_texels={size} is below {MIN_SPECKLE_SIZE_TEXELS}: the texture cannot resolve it; "
             f"use more texels per pixel")
-    density = _require_finite(density, "density")
+    density = require_finite(density, "density")
     if not 0.0 < density < 1.0:
         raise ValueError(f"density must be in (0, 1), got {density}")
-    contrast = _require_positive_finite(contrast, "contrast")
-    mean = _require_finite(mean, "mean")
+    contrast = require_positive_finite(contrast, "contrast")
+    mean = require_finite(mean, "mean")
     if not 0.0 <= mean <= 1.0:
         raise ValueError(f"mean must be in [0, 1], got {mean}")
     if smoothing_texels is None:
         smoothing_texels = DEFAULT_SMOOTHING_FRACTION * size
-    smoothing_texels = _require_finite(smoothing_texels, "smoothing_texels")
+    smoothing_texels = require_finite(smoothing_texels, "smoothing_texels")
     if smoothing_texels < 0:
         raise ValueError(f"smoothing_texels must be >= 0, got {smoothing_texels}")
 
@@ -133,7 +133,7 @@ def gaussian_lowpass(image: np.ndarray, sigma_texels: float) -> np.ndarray:
     ndarray, shape (rows, cols)
         Filtered field, same float precision as ``image`` (float32 or float64).
     """
-    sigma = _require_finite(sigma_texels, "sigma_texels")
+    sigma = require_finite(sigma_texels, "sigma_texels")
     if sigma < 0:
         raise ValueError(f"sigma_texels must be >= 0, got {sigma}")
     image = np.asarray(image)
@@ -254,7 +254,7 @@ def _check_shape(shape_texels) -> tuple[int, int]:
     return rows, cols
 
 
-def _require_finite(value, name: str) -> float:
+def require_finite(value, name: str) -> float:
     try:
         value = float(value)
     except (TypeError, ValueError):
@@ -264,8 +264,8 @@ def _require_finite(value, name: str) -> float:
     return value
 
 
-def _require_positive_finite(value, name: str) -> float:
-    value = _require_finite(value, name)
+def require_positive_finite(value, name: str) -> float:
+    value = require_finite(value, name)
     if value <= 0:
         raise ValueError(f"{name} must be > 0, got {value}")
     return value

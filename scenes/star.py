@@ -53,8 +53,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from .noise import apply_sensor_noise
-from .speckle import _require_finite, _require_positive_finite
-from .synthetic_images import (GaussianSpeckle, _broadcast, _check_shape, extent_for_shape, gaussian_speckle,
+from .speckle import require_finite, require_positive_finite
+from .synthetic_images import (GaussianSpeckle, broadcast_xy, check_image_shape, extent_for_shape, gaussian_speckle,
                                radius_for_speckle_size)
 
 #: Size of the Challenge's Star images, (rows, cols) px.
@@ -107,8 +107,8 @@ class StarDisplacement:
 
     def __post_init__(self):
         for name in ("amplitude_px", "period_min_px", "period_max_px", "width_px"):
-            object.__setattr__(self, name, _require_positive_finite(getattr(self, name), name))
-        object.__setattr__(self, "centre_y_px", _require_finite(self.centre_y_px, "centre_y_px"))
+            object.__setattr__(self, name, require_positive_finite(getattr(self, name), name))
+        object.__setattr__(self, "centre_y_px", require_finite(self.centre_y_px, "centre_y_px"))
         if self.period_max_px < self.period_min_px:
             raise ValueError(f"period_max_px ({self.period_max_px}) must be >= period_min_px ({self.period_min_px})")
         if self.period_min_px <= 2.0 * np.pi * self.amplitude_px:
@@ -131,11 +131,11 @@ class StarDisplacement:
 
     def phase(self, X, Y) -> np.ndarray:
         """``phi = 2 pi (Y - y0) / p(X)``, rad, broadcast shape of ``X`` and ``Y``."""
-        X, Y = _broadcast(X, Y)
+        X, Y = broadcast_xy(X, Y)
         return 2.0 * np.pi * (Y - self.centre_y_px) / self.period_px(X)
 
     def __call__(self, X, Y):
-        X, Y = _broadcast(X, Y)
+        X, Y = broadcast_xy(X, Y)
         return np.zeros_like(X), self.amplitude_px * np.cos(self.phase(X, Y))
 
     def gradient(self, X, Y):
@@ -143,7 +143,7 @@ class StarDisplacement:
 
         ``dV/dY = -A sin(phi) 2 pi / p`` and ``dV/dX = A sin(phi) 2 pi (Y - y0) p' / p^2`` (``p' = dp/dX``).
         """
-        X, Y = _broadcast(X, Y)
+        X, Y = broadcast_xy(X, Y)
         p = self.period_px(X)
         s = self.amplitude_px * np.sin(2.0 * np.pi * (Y - self.centre_y_px) / p)
         zero = np.zeros_like(X)
@@ -156,7 +156,7 @@ class StarDisplacement:
         Zero on the crest line; a subset there sees a pure sinusoid along y. Away from it the stripes tilt
         and a square subset also averages along x.
         """
-        X, Y = _broadcast(X, Y)
+        X, Y = broadcast_xy(X, Y)
         return np.abs(Y - self.centre_y_px) * self.period_slope / self.period_px(X)
 
 
@@ -202,7 +202,7 @@ def star_displacement_for_shape(shape: tuple[int, int], amplitude_px: float = CH
         With ``width_px = cols`` and ``centre_y_px = (rows - 1) / 2``; for :data:`CHALLENGE_SHAPE` it is the
         Challenge's field.
     """
-    rows, cols = _check_shape(shape, minimum=8)
+    rows, cols = check_image_shape(shape, minimum=8)
     p_min, p_max = _check_periods(periods_px)
     return StarDisplacement(amplitude_px, p_min, p_max, float(cols), (rows - 1) / 2.0)
 
@@ -225,7 +225,7 @@ def star_speckle(shape: tuple[int, int], speckle_size_px: float = DEFAULT_SPECKL
         the material points of the deformed pixels lie); it does not depend on the displacement, so a Star
         pair and a static pair of the same seed share it.
     """
-    rows, cols = _check_shape(shape, minimum=8)
+    rows, cols = check_image_shape(shape, minimum=8)
     return gaussian_speckle(extent_for_shape((rows, cols), margin_px=PATTERN_MARGIN_PX),
                             radius_for_speckle_size(speckle_size_px), density, _check_seed(seed),
                             mean_grey=mean_grey, std_grey=std_grey)
@@ -264,9 +264,9 @@ def star_images(shape: tuple[int, int] = CHALLENGE_SHAPE, speckle_size_px: float
     -------
     StarImages
     """
-    rows, cols = _check_shape(shape, minimum=8)
+    rows, cols = check_image_shape(shape, minimum=8)
     truth = star_displacement_for_shape((rows, cols), amplitude_px, periods_px)
-    noise_grey = _require_finite(noise_grey, "noise_grey")
+    noise_grey = require_finite(noise_grey, "noise_grey")
     if noise_grey < 0:
         raise ValueError(f"noise_grey must be >= 0, got {noise_grey}")
     if truth.amplitude_px > PATTERN_MARGIN_PX - 2.0:

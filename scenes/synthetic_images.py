@@ -67,7 +67,7 @@ import numpy as np
 import scipy.fft
 import scipy.optimize
 
-from .speckle import _require_finite, _require_positive_finite
+from .speckle import require_finite, require_positive_finite
 
 #: Blob tails below this fraction of the blob depth are dropped.
 TRUNCATION_LEVEL = 1e-12
@@ -170,7 +170,7 @@ def fourier_shifted_pair(shape: tuple[int, int], speckle_size_px: float, shift_x
     reference, shifted : ndarray of float64, shape (rows, cols)
         ``band_limit(f)`` and ``fourier_shift(f, shift_xy_px)``.
     """
-    rows, cols = _check_shape(shape, minimum=16)
+    rows, cols = check_image_shape(shape, minimum=16)
     shift_x, shift_y = _check_xy(shift_xy_px, "shift_xy_px")
     radius_px = radius_for_speckle_size(speckle_size_px)
     pattern = gaussian_speckle(extent_for_shape((rows, cols)), radius_px, density, seed,
@@ -213,8 +213,8 @@ def extent_for_shape(shape: tuple[int, int], margin_px: float = 0.0) -> tuple[fl
         ``(x_min, x_max, y_min, y_max)`` = ``(-0.5 - m, cols - 0.5 + m, -0.5 - m, rows - 0.5 + m)`` in px. With
         ``m = 0`` and ``periodic=True`` the pattern's period is exactly ``(cols, rows)`` px.
     """
-    rows, cols = _check_shape(shape)
-    margin = _require_finite(margin_px, "margin_px")
+    rows, cols = check_image_shape(shape)
+    margin = require_finite(margin_px, "margin_px")
     if margin < 0:
         raise ValueError(f"margin_px must be >= 0, got {margin}")
     return (-0.5 - margin, cols - 0.5 + margin, -0.5 - margin, rows - 0.5 + margin)
@@ -269,7 +269,7 @@ def radius_for_speckle_size(speckle_size_px: float, radius_spread: float = 0.0) 
     float
         ``mean_radius_px`` for :func:`gaussian_speckle`.
     """
-    size = _require_positive_finite(speckle_size_px, "speckle_size_px")
+    size = require_positive_finite(speckle_size_px, "speckle_size_px")
     spread = _check_spread(radius_spread)
     r_min = np.sqrt(2.0) * MIN_BLOB_SIGMA_PX / (1.0 - spread)
     size_min = speckle_size_for_radius(r_min, spread)
@@ -342,8 +342,8 @@ class GaussianSpeckle:
         sigmas.setflags(write=False)
         object.__setattr__(self, "centres_xy_px", centres)
         object.__setattr__(self, "sigmas_px", sigmas)
-        object.__setattr__(self, "background_grey", _require_finite(self.background_grey, "background_grey"))
-        object.__setattr__(self, "amplitude_grey", _require_finite(self.amplitude_grey, "amplitude_grey"))
+        object.__setattr__(self, "background_grey", require_finite(self.background_grey, "background_grey"))
+        object.__setattr__(self, "amplitude_grey", require_finite(self.amplitude_grey, "amplitude_grey"))
         object.__setattr__(self, "extent_xy_px", extent)
         object.__setattr__(self, "periodic", periodic)
         object.__setattr__(self, "_grid", _build_grid(centres, sigmas, extent, periodic))
@@ -394,7 +394,7 @@ class GaussianSpeckle:
         -------
         ndarray of float64, shape (rows, cols)
         """
-        rows, cols = _check_shape(shape)
+        rows, cols = check_image_shape(shape)
         y, x = np.mgrid[0:rows, 0:cols].astype(np.float64)
         self._require_inside(x, y, "the reference image")
         return self._evaluate_xy(x, y)
@@ -426,7 +426,7 @@ class GaussianSpeckle:
             If the inversion does not converge, or a solved ``X`` lies outside the extent of a non-periodic
             pattern (build it with a larger ``margin_px``).
         """
-        rows, cols = _check_shape(shape)
+        rows, cols = check_image_shape(shape)
         y, x = np.mgrid[0:rows, 0:cols].astype(np.float64)
         X, Y = solve_reference_positions(x, y, displacement, tol_px=tol_px, max_iter=max_iter)
         self._require_inside(X, Y, "the deformed image's material points")
@@ -498,11 +498,11 @@ def gaussian_speckle(extent_xy_px, mean_radius_px: float, density: float = 0.5, 
     GaussianSpeckle
     """
     extent = _check_extent(extent_xy_px)
-    density = _require_finite(density, "density")
+    density = require_finite(density, "density")
     if not 0.0 < density < 1.0:
         raise ValueError(f"density must be in (0, 1), got {density}")
-    mean_grey = _require_finite(mean_grey, "mean_grey")
-    std_grey = _require_positive_finite(std_grey, "std_grey")
+    mean_grey = require_finite(mean_grey, "mean_grey")
+    std_grey = require_positive_finite(std_grey, "std_grey")
     sigmas_q, weights_q = _sigma_quadrature(mean_radius_px, radius_spread)
     mean_sigma = np.sqrt(0.5) * float(mean_radius_px)
     spread = float(radius_spread)
@@ -570,7 +570,7 @@ def solve_reference_positions(x: np.ndarray, y: np.ndarray, displacement: Displa
         raise ValueError("x and y must be finite")
     if not callable(displacement):
         raise TypeError(f"displacement must be a callable (X, Y) -> (U, V), got {displacement!r}")
-    tol = _require_positive_finite(tol_px, "tol_px")
+    tol = require_positive_finite(tol_px, "tol_px")
     if int(max_iter) != max_iter or max_iter < 1:
         raise ValueError(f"max_iter must be an integer >= 1, got {max_iter!r}")
     gradient = getattr(displacement, "gradient", None)
@@ -619,16 +619,16 @@ class Translation:
     uy_px: float
 
     def __post_init__(self):
-        object.__setattr__(self, "ux_px", _require_finite(self.ux_px, "ux_px"))
-        object.__setattr__(self, "uy_px", _require_finite(self.uy_px, "uy_px"))
+        object.__setattr__(self, "ux_px", require_finite(self.ux_px, "ux_px"))
+        object.__setattr__(self, "uy_px", require_finite(self.uy_px, "uy_px"))
 
     def __call__(self, X, Y):
-        X, Y = _broadcast(X, Y)
+        X, Y = broadcast_xy(X, Y)
         return np.full_like(X, self.ux_px), np.full_like(Y, self.uy_px)
 
     def gradient(self, X, Y):
         """``(dU/dX, dU/dY, dV/dX, dV/dY)``: all zero, shape of ``X``."""
-        X, _ = _broadcast(X, Y)
+        X, _ = broadcast_xy(X, Y)
         zero = np.zeros_like(X)
         return zero, zero.copy(), zero.copy(), zero.copy()
 
@@ -649,17 +649,17 @@ class HomogeneousStrain:
 
     def __post_init__(self):
         for name in ("exx", "eyy", "exy"):
-            object.__setattr__(self, name, _require_finite(getattr(self, name), name))
+            object.__setattr__(self, name, require_finite(getattr(self, name), name))
         object.__setattr__(self, "centre_xy_px", _check_xy(self.centre_xy_px, "centre_xy_px"))
 
     def __call__(self, X, Y):
-        X, Y = _broadcast(X, Y)
+        X, Y = broadcast_xy(X, Y)
         dx, dy = X - self.centre_xy_px[0], Y - self.centre_xy_px[1]
         return self.exx * dx + self.exy * dy, self.exy * dx + self.eyy * dy
 
     def gradient(self, X, Y):
         """``(dU/dX, dU/dY, dV/dX, dV/dY) = (exx, exy, exy, eyy)``, each of the shape of ``X``."""
-        X, _ = _broadcast(X, Y)
+        X, _ = broadcast_xy(X, Y)
         return tuple(np.full_like(X, value) for value in (self.exx, self.exy, self.exy, self.eyy))
 
 
@@ -675,7 +675,7 @@ class Rotation:
     centre_xy_px: tuple[float, float] = (0.0, 0.0)
 
     def __post_init__(self):
-        object.__setattr__(self, "angle_deg", _require_finite(self.angle_deg, "angle_deg"))
+        object.__setattr__(self, "angle_deg", require_finite(self.angle_deg, "angle_deg"))
         object.__setattr__(self, "centre_xy_px", _check_xy(self.centre_xy_px, "centre_xy_px"))
 
     def _matrix_minus_identity(self):
@@ -684,14 +684,14 @@ class Rotation:
         return -2.0 * np.sin(0.5 * a) ** 2, np.sin(a)
 
     def __call__(self, X, Y):
-        X, Y = _broadcast(X, Y)
+        X, Y = broadcast_xy(X, Y)
         cm1, s = self._matrix_minus_identity()
         dx, dy = X - self.centre_xy_px[0], Y - self.centre_xy_px[1]
         return cm1 * dx - s * dy, s * dx + cm1 * dy
 
     def gradient(self, X, Y):
         """``(dU/dX, dU/dY, dV/dX, dV/dY) = (cos a - 1, -sin a, sin a, cos a - 1)``, shape of ``X``."""
-        X, _ = _broadcast(X, Y)
+        X, _ = broadcast_xy(X, Y)
         cm1, s = self._matrix_minus_identity()
         return tuple(np.full_like(X, value) for value in (cm1, -s, s, cm1))
 
@@ -716,7 +716,7 @@ class QuadraticField:
         object.__setattr__(self, "centre_xy_px", _check_xy(self.centre_xy_px, "centre_xy_px"))
 
     def __call__(self, X, Y):
-        X, Y = _broadcast(X, Y)
+        X, Y = broadcast_xy(X, Y)
         dx, dy = X - self.centre_xy_px[0], Y - self.centre_xy_px[1]
         (a_xx, a_xy, a_yy), (b_xx, b_xy, b_yy) = self.u_coeffs, self.v_coeffs
         return (a_xx * dx * dx + a_xy * dx * dy + a_yy * dy * dy,
@@ -724,7 +724,7 @@ class QuadraticField:
 
     def gradient(self, X, Y):
         """``(dU/dX, dU/dY, dV/dX, dV/dY)``, each of the shape of ``X``."""
-        X, Y = _broadcast(X, Y)
+        X, Y = broadcast_xy(X, Y)
         dx, dy = X - self.centre_xy_px[0], Y - self.centre_xy_px[1]
         (a_xx, a_xy, a_yy), (b_xx, b_xy, b_yy) = self.u_coeffs, self.v_coeffs
         return (2.0 * a_xx * dx + a_xy * dy, a_xy * dx + 2.0 * a_yy * dy,
@@ -812,7 +812,7 @@ def _sum_blobs(x, y, bx, by, inv_two_var, cutoff2, cell_start, origin_x, origin_
 # ------------------------------------------------------------------------------------------------------------
 def _sigma_quadrature(mean_radius_px, radius_spread) -> tuple[np.ndarray, np.ndarray]:
     """Blob sigmas and probability weights (Gauss-Legendre) for the uniform radius distribution; checked."""
-    radius = _require_positive_finite(mean_radius_px, "mean_radius_px")
+    radius = require_positive_finite(mean_radius_px, "mean_radius_px")
     spread = _check_spread(radius_spread)
     smallest_sigma = np.sqrt(0.5) * radius * (1.0 - spread)
     if smallest_sigma < MIN_BLOB_SIGMA_PX:
@@ -827,7 +827,7 @@ def _sigma_quadrature(mean_radius_px, radius_spread) -> tuple[np.ndarray, np.nda
 
 
 def _check_spread(radius_spread) -> float:
-    spread = _require_finite(radius_spread, "radius_spread")
+    spread = require_finite(radius_spread, "radius_spread")
     if not 0.0 <= spread < 1.0:
         raise ValueError(f"radius_spread must be in [0, 1), got {spread}")
     return spread
@@ -854,7 +854,7 @@ def _call_gradient(gradient, X, Y) -> tuple[np.ndarray, ...]:
     return parts
 
 
-def _broadcast(X, Y) -> tuple[np.ndarray, np.ndarray]:
+def broadcast_xy(X, Y) -> tuple[np.ndarray, np.ndarray]:
     X, Y = np.broadcast_arrays(np.asarray(X, dtype=np.float64), np.asarray(Y, dtype=np.float64))
     return X, Y
 
@@ -872,7 +872,7 @@ def _check_image(image) -> np.ndarray:
     return image
 
 
-def _check_shape(shape, minimum: int = 1) -> tuple[int, int]:
+def check_image_shape(shape, minimum: int = 1) -> tuple[int, int]:
     try:
         rows, cols = (int(n) for n in shape)
         exact = all(int(n) == n for n in shape)

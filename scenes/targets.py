@@ -726,7 +726,7 @@ class DotGrid:
 
     def outline_board_mm(self) -> np.ndarray:
         """Corners of the dotted area (half a pitch around the outer dot centres), board frame, (4, 3) mm: the
-        outline that must stay in view (:func:`workbench.experiments.checkerboard_views.board_outline_mm`)."""
+        outline that must stay in view (:func:`workbench.experiments.calibration.views.board_outline_mm`)."""
         nx, ny = self.pattern_size
         h = 0.5 * self.pitch_mm
         x0, x1, y0, y1 = -h, (nx - 1) * self.pitch_mm + h, -h, (ny - 1) * self.pitch_mm + h

@@ -29,7 +29,7 @@ from typing import Callable, Sequence
 
 import numpy as np
 
-from scenes.camera import SensorSpec
+from scenes.camera import SensorSpec, distortion_terms
 
 #: Fixed-point undistortion stops when the update is below this (ideal-plane units, ~1e-12 px).
 _UNDISTORT_TOL = 1e-15
@@ -71,28 +71,6 @@ def tilted_sensor_axes(alpha_deg: float, beta_deg: float) -> np.ndarray:
     return R_y @ R_x
 
 
-def _distortion_terms(x: np.ndarray, y: np.ndarray, spec: SensorSpec) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """OpenCV's distortion split as ``x_d = x * radial + dx``, ``y_d = y * radial + dy``; each (N,).
-
-    ``radial = 1 + k1 r^2 + k2 r^4 + k3 r^6``, ``dx = 2 p1 x y + p2 (r^2 + 2 x^2) + s1 r^2 + s2 r^4``,
-    ``dy = p1 (r^2 + 2 y^2) + 2 p2 x y + s3 r^2 + s4 r^4`` (see :class:`scenes.camera.SensorSpec`). The k3
-    and thin-prism terms are evaluated only when non-zero, so a lens without them gives bit-for-bit the
-    values of the Brown-only formula (even where r^2 overflows, where ``0 * inf`` would be NaN).
-    """
-    r2 = x * x + y * y
-    if spec.k3 != 0.0:
-        radial = 1.0 + r2 * (spec.k1 + r2 * (spec.k2 + spec.k3 * r2))
-    else:
-        radial = 1.0 + r2 * (spec.k1 + spec.k2 * r2)
-    dx = 2.0 * spec.p1 * x * y + spec.p2 * (r2 + 2.0 * x * x)
-    dy = spec.p1 * (r2 + 2.0 * y * y) + 2.0 * spec.p2 * x * y
-    if spec.s1 != 0.0 or spec.s2 != 0.0:
-        dx = dx + r2 * (spec.s1 + spec.s2 * r2)
-    if spec.s3 != 0.0 or spec.s4 != 0.0:
-        dy = dy + r2 * (spec.s3 + spec.s4 * r2)
-    return radial, dx, dy
-
-
 def distort(xy_n: np.ndarray, spec: SensorSpec) -> np.ndarray:
     """Lens distortion on the ideal plane (Brown k1, k2, p1, p2 plus OpenCV's k3 and thin prism s1..s4).
 
@@ -106,7 +84,7 @@ def distort(xy_n: np.ndarray, spec: SensorSpec) -> np.ndarray:
     (N, 2) float, distorted normalised coordinates (unitless), exactly OpenCV's ``x''``, ``y''``.
     """
     x, y = xy_n[:, 0], xy_n[:, 1]
-    radial, dx, dy = _distortion_terms(x, y, spec)
+    radial, dx, dy = distortion_terms(x, y, spec)
     return np.stack([x * radial + dx, y * radial + dy], axis=1)
 
 
@@ -130,7 +108,7 @@ def undistort(xy_d: np.ndarray, spec: SensorSpec) -> np.ndarray:
     xd, yd = xy_d[:, 0], xy_d[:, 1]
     xn, yn = xd.copy(), yd.copy()
     for _ in range(_UNDISTORT_MAX_ITERATIONS):
-        radial, dx, dy = _distortion_terms(xn, yn, spec)
+        radial, dx, dy = distortion_terms(xn, yn, spec)
         xn_new, yn_new = (xd - dx) / radial, (yd - dy) / radial
         step = np.maximum(np.abs(xn_new - xn), np.abs(yn_new - yn))
         xn, yn = xn_new, yn_new

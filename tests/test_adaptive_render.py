@@ -13,7 +13,7 @@ import pytest
 from scenes.adaptive import AdaptiveSettings, render_view_adaptive, render_views_adaptive
 from scenes.render import render_view
 from scenes.targets import Checkerboard
-from workbench.experiments.checkerboard_views import board_outline_mm, sensor_spec_for
+from workbench.experiments.calibration.views import board_outline_mm, sensor_spec_for
 from workbench.poses import random_board_poses
 from workbench.rigs import get_rig
 
@@ -31,7 +31,7 @@ def board_scene():
 
 @pytest.fixture(scope="module")
 def speckle_scene():
-    from workbench.experiments.rigid_motion_scenes import rigid_motion_truth
+    from workbench.experiments.rigid_motion.scenes import rigid_motion_truth
 
     truth = rigid_motion_truth(get_rig("scheimpflug", SCALE), lens="thin", seed=0)
     surfaces = truth.specimen.surfaces(*truth.poses[0], texture=truth.specimen.texture())

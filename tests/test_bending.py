@@ -11,8 +11,8 @@ import pytest
 from scenes.fields import DisplacementField
 from scenes.truth import project_points
 from workbench.cli import main
-from workbench.experiments.bending import reproduce_bending
-from workbench.experiments.bending_scenes import bending_truth, load_bending_truth
+from workbench.experiments.bending.run import reproduce_bending
+from workbench.experiments.bending.scenes import bending_truth, load_bending_truth
 from workbench.rigs import scheimpflug_rig
 
 SCALE = 0.3
@@ -190,7 +190,7 @@ def test_cli_refuses_an_even_window_before_any_work(tmp_path, capsys):
 
 
 def test_cli_exits_non_zero_when_no_state_was_measured(tmp_path, monkeypatch, capsys):
-    import workbench.experiments.bending as bending
+    import workbench.experiments.bending.run as bending
 
     def nothing_measured(out, **kwargs):
         return {"calibration": "true rig", "points": 10, "vsg_px": 135,

@@ -1,6 +1,6 @@
 """Calibration files and the ``workbench calibrate`` command on image files, including bad input.
 
-The loaders validate every key (:mod:`measurement.schema`): each defect of issue 10 class 1 has a rejection test
+The loaders validate every key (:mod:`labio.schema`): each defect of issue 10 class 1 has a rejection test
 below that names the file and the key; the writers are atomic and refuse to write a file that would not load.
 Property-based fuzzing of the same loaders: ``tests/test_fuzz_calibration_loaders.py``.
 """
@@ -20,7 +20,7 @@ import pytest
 from measurement.calibration.io import (CalibratedRig, export_opencv_yaml, load_calibration, load_opencv_yaml,
                                         save_calibration)
 from measurement.calibration.stepwise import MODELS, calibrate_stereo
-from measurement.schema import FileFormatError
+from labio.schema import FileFormatError
 from measurement.calibration.detection import board_points_mm
 from workbench.cli import main
 
@@ -28,7 +28,7 @@ from workbench.cli import main
 @pytest.fixture(scope="module")
 def synthetic_calibration():
     from scenes.targets import Checkerboard
-    from workbench.experiments.checkerboard_views import board_outline_mm
+    from workbench.experiments.calibration.views import board_outline_mm
     from workbench.poses import random_board_poses
     from workbench.rigs import paper_rig
 
@@ -338,7 +338,7 @@ def test_yaml_that_would_crash_opencv_is_refused_before_parsing(tmp_path, text, 
 
     path = tmp_path / "calib.yaml"
     path.write_text(text)
-    code = ("import sys\nfrom measurement.calibration.io import load_opencv_yaml\nfrom measurement.schema import "
+    code = ("import sys\nfrom measurement.calibration.io import load_opencv_yaml\nfrom labio.schema import "
             "FileFormatError\ntry:\n    load_opencv_yaml(sys.argv[1])\nexcept FileFormatError as err:\n"
             "    print(err)\n")
     run = subprocess.run([sys.executable, "-c", code, str(path)], capture_output=True, text=True, timeout=120,

@@ -24,7 +24,7 @@ from measurement.calibration.formats import (DICE_MODEL, MATCHID_MODEL, VIC3D_MO
 from measurement.calibration.io import (CalibratedRig, load_calibration, load_opencv_yaml, opencv_distortion_cost_px,
                                         save_rig)
 from measurement.camera import ScheimpflugCamera
-from measurement.schema import FileFormatError
+from labio.schema import FileFormatError
 from measurement.stereo import projection_jacobian
 
 DATA = Path(__file__).parent / "data" / "calibration"

@@ -41,8 +41,8 @@ from measurement.camera import INTRINSIC_NAMES
 from scenes.targets import Checkerboard
 from scenes.truth import project_points
 from workbench.cli import main
-from workbench.experiments.checkerboard_views import board_outline_mm, sensor_spec_for
-from workbench.experiments.rigid_motion_case import TILT_GUESS_DEG, render_calibration_views
+from workbench.experiments.calibration.views import board_outline_mm, sensor_spec_for
+from workbench.experiments.rigid_motion.case import TILT_GUESS_DEG, render_calibration_views
 from workbench.poses import random_board_poses
 from workbench.rigs import get_rig, paper_rig
 from workbench.scenario import LensConfig, RenderConfig, RigConfig, Scenario, TargetConfig, dataset_parts

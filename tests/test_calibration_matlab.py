@@ -23,7 +23,7 @@ from measurement.calibration.formats import (FORMATS, detect_format, load_any_ca
                                              save_calibration_as, save_matlab)
 from measurement.calibration.io import CalibratedRig
 from measurement.camera import ScheimpflugCamera
-from measurement.schema import FileFormatError
+from labio.schema import FileFormatError
 
 SAMPLE = Path(__file__).parent / "data" / "calibration" / "matlab_stereoParameters_toStruct.json"
 
@@ -374,7 +374,8 @@ def test_detect_format_recognises_matlab_json_and_mat_files_by_content(tmp_path)
 
 
 def test_cli_converts_matlab_to_dice_and_back_within_1e6_px(tmp_path, capsys, rng):
-    from workbench.cli import _load_rig, main
+    from workbench.cli import main
+    from workbench.commands.stereo import load_rig as _load_rig
 
     xml, mat, back_json = tmp_path / "cal.xml", tmp_path / "cal.mat", tmp_path / "back.json"
     assert main(["calibration", "convert", str(SAMPLE), str(xml), "--to", "dice"]) == 0

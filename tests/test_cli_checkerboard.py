@@ -9,7 +9,7 @@ import pytest
 
 from scenes.truth import project_points
 from workbench.cli import main
-from workbench.experiments.checkerboard_views import sensor_spec_for
+from workbench.experiments.calibration.views import sensor_spec_for
 from workbench.rigs import get_rig
 
 

@@ -21,7 +21,7 @@ from scenes.render import render_view
 from scenes.specimens import SpeckledPlate
 from scenes.synthetic_images import fourier_shifted_pair
 from workbench.cli import main
-from workbench.experiments.checkerboard_views import sensor_spec_for
+from workbench.experiments.calibration.views import sensor_spec_for
 from workbench.manifest import MANIFEST_NAME, PENDING_NAME, complete_manifest
 from workbench.rigs import paper_rig
 
@@ -238,7 +238,7 @@ def test_render_into_an_earlier_dataset_is_refused_and_overwrite_deletes_exactly
 
 
 def test_truth_and_manifest_are_written_last(tmp_path, monkeypatch):
-    import workbench.experiments.checkerboard_views as cbv
+    import workbench.experiments.calibration.views as cbv
 
     order = []
     for name in ("atomic_write_image", "atomic_write_text", "complete_folder"):
@@ -250,7 +250,7 @@ def test_truth_and_manifest_are_written_last(tmp_path, monkeypatch):
 
 
 def test_an_interrupted_render_is_never_a_dataset(tmp_path, capsys, monkeypatch):
-    import workbench.experiments.checkerboard_views as cbv
+    import workbench.experiments.calibration.views as cbv
 
     real, calls = cbv._render_exact, []
 
@@ -293,8 +293,8 @@ def test_an_older_dataset_without_manifest_is_refused_and_replaced_by_its_truth(
 def test_the_render_store_reuses_only_complete_datasets(tmp_path):
     """The one render cache of every experiment: a stored dataset is reused; one with a file missing, or one
     whose manifest was never written (an interrupted render), is never read as valid and is rendered again."""
-    from workbench.experiments.checkerboard_views import write_checkerboard_dataset
-    from workbench.experiments.rigid_motion_scenes import load_truth, render_rigid_motion
+    from workbench.experiments.calibration.views import write_checkerboard_dataset
+    from workbench.experiments.rigid_motion.scenes import load_truth, render_rigid_motion
     from workbench.store import DatasetStore, stored_render
 
     rig = paper_rig(0.1)
@@ -327,7 +327,7 @@ def test_the_render_store_reuses_only_complete_datasets(tmp_path):
 
 def test_reproduce_names_and_skips_a_state_that_fails_the_stereo_check(tmp_path, monkeypatch, capsys):
     """A state refused by the sanity check is skipped like an unmatched one, in the metrics and the report."""
-    import workbench.experiments.rigid_motion as rm
+    import workbench.experiments.rigid_motion.run as rm
 
     real = rm.measure_state
 
@@ -371,7 +371,7 @@ def synthetic_calibration():
     from measurement.calibration.detection import board_points_mm
     from measurement.calibration.stepwise import calibrate_stereo
     from scenes.targets import Checkerboard
-    from workbench.experiments.checkerboard_views import board_outline_mm
+    from workbench.experiments.calibration.views import board_outline_mm
     from workbench.poses import random_board_poses
 
     rig = paper_rig(0.5)

@@ -8,7 +8,7 @@ import pytest
 
 from workbench.config import ConfigError, content_hash, from_dict, load_config, save_config, to_dict, with_value
 from workbench.scenario import Instrument, Scenario, dataset_parts
-from workbench.study import load_study, parse_study
+from workbench.studies.study import load_study, parse_study
 
 
 def _changed_scenario() -> Scenario:

@@ -3,7 +3,7 @@ the instrument measures it better (noise floor, displacement error)."""
 import pytest
 
 from measurement.image_quality import mean_intensity_gradient
-from workbench.experiments.depth_of_field import run_depth_of_field_study
+from workbench.experiments.depth_of_field.run import run_depth_of_field_study
 
 
 @pytest.fixture(scope="module")

@@ -19,7 +19,7 @@ import pytest
 
 from measurement.calibration.detection import board_points_mm, detect_checkerboard
 from scenes.targets import Checkerboard
-from workbench.experiments.checkerboard_views import board_outline_mm, render_board_views
+from workbench.experiments.calibration.views import board_outline_mm, render_board_views
 from workbench.poses import random_board_poses
 
 PATTERN = (11, 8)

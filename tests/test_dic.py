@@ -500,7 +500,7 @@ def test_prepared_reference_gives_the_same_result(pair):
 def test_bias_falls_with_speckle_size_and_the_size_conventions_agree():
     """The report's sweep (small images here): biquintic below bicubic and falling with the speckle size; a
     pattern's single-blob FWHM is its autocorrelation size / sqrt(2) (Gaussian blobs)."""
-    from workbench.experiments.dic_accuracy import bias_size_sweep, blob_fwhm_px
+    from workbench.experiments.dic2d.accuracy import bias_size_sweep, blob_fwhm_px
     rows = bias_size_sweep((2.5, 4.0), shape=(160, 160))
     for row in rows:
         assert row["biquintic"] < row["bicubic"]

@@ -11,9 +11,9 @@ from measurement.stereo import triangulate
 from scenes.drift import CameraDrift, drifted_pose
 from scenes.truth import project_points
 from workbench.config import with_value
-from workbench.experiments import rigid_motion_case
-from workbench.experiments.rigid_motion import measure_rigid_motion
-from workbench.experiments.rigid_motion_scenes import load_truth
+from workbench.experiments.rigid_motion import case as rigid_motion_case
+from workbench.experiments.rigid_motion.run import measure_rigid_motion
+from workbench.experiments.rigid_motion.scenes import load_truth
 from workbench.scenario import Instrument, Scenario, dataset_parts
 from workbench.store import DatasetStore
 

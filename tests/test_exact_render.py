@@ -24,7 +24,7 @@ from scenes.exact_render import NotExactError, render_view_exact
 from scenes.render import render_view
 from scenes.surfaces import TexturedSurface
 from scenes.targets import CharucoBoard, Checkerboard, DotGrid
-from workbench.experiments.checkerboard_views import (board_outline_mm, render_board_views, sensor_spec_for,
+from workbench.experiments.calibration.views import (board_outline_mm, render_board_views, sensor_spec_for,
                                                       write_checkerboard_dataset)
 from workbench.poses import random_board_poses
 from workbench.rigs import get_rig
@@ -179,7 +179,7 @@ def test_exact_renders_meet_the_render_model_agreement_goal_with_no_common_offse
     """Corners of exact renders fitted by the analytic patch model (workbench.agreement) sit where the
     instrument's camera model (measurement.camera, an independent implementation) projects them: mean distance
     <= 0.005 px in each camera at quarter scale, and the mean offset vector below 0.002 px (no common shift)."""
-    from workbench.experiments.render_agreement import measure_agreement
+    from workbench.experiments.calibration.agreement import measure_agreement
 
     summary = measure_agreement(get_rig("paper", 0.25), n_views=1, seed=3, progress=False, renderer="exact")
     assert summary["renderer"] == "exact"

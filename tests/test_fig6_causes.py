@@ -7,8 +7,8 @@ import json
 import numpy as np
 import pytest
 
-from workbench.experiments.fig6_causes import paper_at, write_fig6_report
-from workbench.study import parse_study
+from workbench.studies.fig6_causes import paper_at, write_fig6_report
+from workbench.studies.study import parse_study
 
 STAGE = np.arange(1.0, 11.0)
 
@@ -59,3 +59,16 @@ def test_verdicts_follow_the_tolerances_and_the_hand_computed_extrapolation(tmp_
     assert json.loads((tmp_path / "fig6_causes.json").read_text())["best"][0] == "both"
     text = (tmp_path / "fig6_causes.md").read_text()
     assert "![Fig 6](fig6_causes.png)" in text and (tmp_path / "fig6_causes.png").stat().st_size > 10_000
+
+
+def test_the_study_writes_one_html_report_with_fig6_and_the_study_figures(tmp_path):
+    """One generated HTML per study folder: Fig 6, the verdicts and the study's own figures are in report.html,
+    and no second HTML (fig6_causes.html) is written beside it."""
+    pm, ps = paper_at(STAGE)
+    records = [_record(name, pm, ps, 0.04) for name in ("perfect world", "scale", "roll", "both", "bent")]
+    study_figure = ("study figure: mean error", "c3R1ZHk=")          # base64 of b"study"
+    write_fig6_report(_study(), tmp_path, records, {}, [study_figure], ["study line: 5 cases"])
+    html = (tmp_path / "report.html").read_text()
+    assert "Fig 6: paper vs simulated causes" in html and "study figure: mean error" in html
+    assert "c3R1ZHk=" in html and "study line: 5 cases" in html
+    assert sorted(p.name for p in tmp_path.glob("*.html")) == ["report.html"]

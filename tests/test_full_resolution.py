@@ -1,7 +1,7 @@
 """Full-resolution checks (2456 x 2058 px): run with ``pytest -m slow`` (several minutes on 2 cores)."""
 import pytest
 
-from workbench.experiments.render_agreement import GOAL_MAX_PX, GOAL_MEAN_PX, measure_agreement, summary_lines
+from workbench.experiments.calibration.agreement import GOAL_MAX_PX, GOAL_MEAN_PX, measure_agreement, summary_lines
 from workbench.rigs import paper_rig
 
 pytestmark = pytest.mark.slow

@@ -2,11 +2,11 @@
 
 Loaders: the calibration JSON (:func:`measurement.calibration.io.load_calibration`), the OpenCV YAML
 (:func:`~measurement.calibration.io.load_opencv_yaml`) and ``truth.json`` of both experiments
-(:func:`workbench.experiments.rigid_motion_scenes.load_truth`,
-:func:`workbench.experiments.bending_scenes.load_bending_truth`).
+(:func:`workbench.experiments.rigid_motion.scenes.load_truth`,
+:func:`workbench.experiments.bending.scenes.load_bending_truth`).
 
 The property: whatever the bytes, a loader returns a valid object or raises
-:class:`measurement.schema.FileFormatError` naming the file -- never another exception (KeyError, TypeError,
+:class:`labio.schema.FileFormatError` naming the file -- never another exception (KeyError, TypeError,
 AttributeError, SystemError, OverflowError, a cv2.error ...). Inputs, per loader:
 
 * random JSON/YAML structures (recursive dicts/lists/scalars, top-level keys drawn from the real ones too);
@@ -38,7 +38,7 @@ from hypothesis import strategies as st
 from measurement.calibration.io import (CalibratedRig, _read_opencv_yaml, calibration_to_dict, export_opencv_yaml,
                                         load_calibration, load_opencv_yaml)
 from measurement.calibration.stepwise import CameraCalibration, StereoCalibration
-from measurement.schema import FileFormatError
+from labio.schema import FileFormatError
 
 #: Cases per loader in the default run (4 loaders: ~40 s in all on 2 cores) and under ``-m fuzz_long``.
 DEFAULT_EXAMPLES = 300
@@ -99,7 +99,7 @@ def _as_rendered(truth, rig, scale):
 
 @functools.cache
 def rigid_truth():
-    from workbench.experiments.rigid_motion_scenes import rigid_motion_truth
+    from workbench.experiments.rigid_motion.scenes import rigid_motion_truth
     from workbench.rigs import get_rig
 
     rig = get_rig("paper", 0.1)
@@ -111,7 +111,7 @@ def rigid_truth():
 
 @functools.cache
 def bending_truth_():
-    from workbench.experiments.bending_scenes import bending_truth
+    from workbench.experiments.bending.scenes import bending_truth
     from workbench.rigs import get_rig
 
     rig = get_rig("scheimpflug", 0.1)
@@ -123,14 +123,14 @@ def bending_truth_():
 
 @functools.cache
 def valid_rigid_truth_json() -> str:
-    from workbench.experiments.rigid_motion_scenes import _truth_to_json
+    from workbench.experiments.rigid_motion.scenes import _truth_to_json
 
     return json.dumps(_truth_to_json(rigid_truth()), indent=1)
 
 
 @functools.cache
 def valid_bending_truth_json() -> str:
-    from workbench.experiments.bending_scenes import _truth_to_json
+    from workbench.experiments.bending.scenes import _truth_to_json
 
     return json.dumps(_truth_to_json(bending_truth_()), indent=1)
 
@@ -354,8 +354,8 @@ def _check_truth(truth):
 
 
 def _load_truth(folder: Path, loader):
-    from workbench.experiments.bending_scenes import load_bending_truth
-    from workbench.experiments.rigid_motion_scenes import load_truth
+    from workbench.experiments.bending.scenes import load_bending_truth
+    from workbench.experiments.rigid_motion.scenes import load_truth
 
     return {"rigid": load_truth, "bending": load_bending_truth}[loader](folder)
 

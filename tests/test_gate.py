@@ -13,7 +13,7 @@ import xml.etree.ElementTree as ET
 
 import pytest
 
-from workbench.gate import GateError, MetricRule, load_gate, verdict
+from workbench.scoring.gate import GateError, MetricRule, load_gate, verdict
 
 SMALL = """
 [gate]

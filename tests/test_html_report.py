@@ -1,4 +1,4 @@
-"""workbench.html_report: self-contained HTML reports, checked against an independent reading of the HTML."""
+"""workbench.reporting.html_report: self-contained HTML reports, checked against an independent reading of the HTML."""
 import base64
 import io
 import re
@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 from matplotlib.figure import Figure
 
-from workbench.html_report import check_html_report, markdown_to_html, write_html_report
+from workbench.reporting.html_report import check_html_report, markdown_to_html, write_html_report
 
 
 class _Reader(HTMLParser):

@@ -263,7 +263,7 @@ def test_specs_from_the_instrument_and_from_to_dict_still_build():
     """``SensorSpec(**camera.intrinsics(), ...)`` (no k3: checkerboard_views) gives zero extra terms, and
     ``SensorSpec(**spec.to_dict())`` round-trips a spec that has them."""
     from measurement.camera import ScheimpflugCamera
-    from workbench.experiments.checkerboard_views import camera_to_sensor_spec
+    from workbench.experiments.calibration.views import camera_to_sensor_spec
 
     cam = ScheimpflugCamera(fx=2728.1, fy=2724.2, cx=217.2, cy=247.5, alpha_deg=0.6, k1=-0.36, width=614, height=514)
     spec = camera_to_sensor_spec(cam)

@@ -23,7 +23,7 @@ from measurement.calibration.stepwise import CalibrationError, calibrate_stereo
 from scenes.targets import Checkerboard
 from scenes.truth import project_points
 from workbench.cli import main
-from workbench.experiments.checkerboard_views import board_outline_mm, sensor_spec_for
+from workbench.experiments.calibration.views import board_outline_mm, sensor_spec_for
 from workbench.poses import random_board_poses
 from workbench.rigs import paper_rig
 

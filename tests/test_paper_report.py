@@ -17,11 +17,11 @@ import shutil
 from pathlib import Path
 
 import matplotlib.image
-import numpy as np
 import pytest
 
-from workbench.experiments import paper
-from workbench.experiments.paper import STAGES, PaperSettings, reproduce_paper, stage_done, write_paper_report
+from workbench.experiments.paper import run as paper
+from workbench.experiments.paper.run import STAGES, PaperSettings, reproduce_paper, stage_done, write_paper_report
+from workbench.reporting import experiment_idics
 
 REPORTS = Path(__file__).resolve().parents[1] / "reports"
 COMMITTED = {"calibration": "calibration", "rigid_motion": "rigid_motion", "bending": "bending",
@@ -162,7 +162,7 @@ def test_an_interrupted_run_continues_from_the_completed_stages(tmp_path, monkey
 
     monkeypatch.setattr(paper, "_run_stage", fake_stage)
     monkeypatch.setattr(paper, "goal_rows", lambda out, s: [])
-    monkeypatch.setattr(paper, "_idics_for", lambda stage, m, level=2: [])
+    monkeypatch.setattr(experiment_idics, "idics_for", lambda stage, m, level=2: [])
     settings = PaperSettings.for_mode(True)
     out = tmp_path / "run"
     with pytest.raises(KeyboardInterrupt, match="interrupted in rigid_motion"):
@@ -187,7 +187,7 @@ def test_a_scale_outside_0_1_is_refused(scale):
 def test_every_experiment_report_gets_the_idics_tables_once(assembled):
     """The guide's hardware and analysis tables go into each experiment's own report.md (not only the paper's),
     filled from the run: the image resolution row is the metrics' image size, the subset row the metrics' subset."""
-    from workbench.experiments.paper import IDICS_HEADING, append_idics
+    from workbench.reporting.experiment_idics import IDICS_HEADING, append_idics
 
     for stage, _, _ in STAGES:
         m = json.loads((assembled / stage / "metrics.json").read_text())

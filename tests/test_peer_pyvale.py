@@ -15,7 +15,7 @@ import tifffile
 _HAD_STRAY_LOG = Path("plotter_log.log").exists()
 pyvale = pytest.importorskip("pyvale")
 
-from measurement.files import atomic_write_image  # noqa: E402
+from labio.atomic import atomic_write_image  # noqa: E402
 from scenes import synthetic_images as si  # noqa: E402
 from workbench.peers import pyvale_engine  # noqa: E402
 

@@ -4,7 +4,7 @@ import pytest
 
 from scenes.camera import SensorSpec, sensor_dict
 from scenes.targets import Checkerboard
-from workbench.experiments.checkerboard_views import board_outline_mm, render_board_views
+from workbench.experiments.calibration.views import board_outline_mm, render_board_views
 from workbench.poses import BoardOutOfViewError, check_in_view, random_board_poses
 from workbench.rigs import get_rig, paper_rig
 

@@ -3,7 +3,7 @@ import numpy as np
 import pytest
 
 from workbench.agreement import fit_corners
-from workbench.experiments.render_agreement import GOAL_MAX_PX, GOAL_MEAN_PX, measure_agreement, summary_lines
+from workbench.experiments.calibration.agreement import GOAL_MAX_PX, GOAL_MEAN_PX, measure_agreement, summary_lines
 
 
 @pytest.fixture(scope="module")
@@ -32,7 +32,7 @@ def test_fit_detects_a_known_model_error(paper_rig_quarter):
 
     from scenes.render import render_view
     from scenes.targets import Checkerboard
-    from workbench.experiments.checkerboard_views import sensor_spec_for
+    from workbench.experiments.calibration.views import sensor_spec_for
 
     rig = paper_rig_quarter
     board = Checkerboard()

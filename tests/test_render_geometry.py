@@ -7,8 +7,8 @@ from scenes.camera import SensorSpec
 from scenes.render import render_view
 from scenes.specimens import SpeckledPlate
 from scenes.targets import Checkerboard
-from workbench.experiments.checkerboard_views import camera_to_sensor_spec
-from workbench.experiments.depth_of_field import scheimpflug_sensor_tilt_deg
+from workbench.experiments.calibration.views import camera_to_sensor_spec
+from workbench.experiments.depth_of_field.run import scheimpflug_sensor_tilt_deg
 
 W, H, FX = 160, 120, 1500.0
 PITCH_MM = 0.0138

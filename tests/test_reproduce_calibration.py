@@ -11,7 +11,7 @@ import json
 
 import pytest
 
-from workbench.experiments.calibration import reproduce_calibration
+from workbench.experiments.calibration.run import reproduce_calibration
 
 SCALE = 0.25
 

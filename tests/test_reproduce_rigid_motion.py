@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from measurement.calibration.io import CalibratedRig, export_opencv_yaml
-from workbench.experiments.rigid_motion import reproduce_rigid_motion
+from workbench.experiments.rigid_motion.run import reproduce_rigid_motion
 from workbench.rigs import paper_rig
 
 KW = dict(scale=0.25, states=[0.0, 1.0, 0.0], spp=16, subset_size=33, step=12, progress=False)

@@ -17,7 +17,7 @@ from scenes.truth import (defocus_blur_px, focal_length_for_focus_mm, in_focus_p
                           intersect_front_face, material_point_positions, pixel_rays, points_of_interest_truth,
                           project_points)
 from workbench.agreement import fourier_shift_fit
-from workbench.experiments.rigid_motion_scenes import (SpecimenOutOfViewError, load_truth, render_rigid_motion,
+from workbench.experiments.rigid_motion.scenes import (SpecimenOutOfViewError, load_truth, render_rigid_motion,
                                                        rigid_motion_truth)
 from workbench.rigs import paper_rig
 
@@ -106,7 +106,7 @@ def test_bending_specimen_solid_and_validation():
 
 def test_truth_rays_agree_with_measurement_camera(rig):
     """scenes.truth and measurement.camera are independent implementations of the same camera."""
-    from workbench.experiments.checkerboard_views import sensor_spec_for
+    from workbench.experiments.calibration.views import sensor_spec_for
 
     rng = np.random.default_rng(0)
     for side in ("left", "right"):

@@ -3,8 +3,8 @@ import numpy as np
 import pytest
 from dataclasses import replace
 
-from workbench.experiments.checkerboard_views import sensor_spec_for
-from workbench.experiments.rigid_motion_scenes import face_blur_px, specimen_reference_pose
+from workbench.experiments.calibration.views import sensor_spec_for
+from workbench.experiments.rigid_motion.scenes import face_blur_px, specimen_reference_pose
 from workbench.rigs import (facing_plane_world, get_rig, paper_rig, scheimpflug_rig, scheimpflug_tilt_for_plane)
 from scenes.specimens import BendingSpecimen
 

@@ -11,7 +11,7 @@ from measurement.stereo_dic import StereoMatchError, match_features, measure_sta
 from scenes.noise import SensorNoise
 from scenes.render import render_view
 from scenes.specimens import SpeckledPlate
-from workbench.experiments.checkerboard_views import sensor_spec_for
+from workbench.experiments.calibration.views import sensor_spec_for
 from workbench.rigs import paper_rig
 
 SCALE = 0.25

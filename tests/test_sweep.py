@@ -16,9 +16,9 @@ import numpy as np
 import pytest
 
 from workbench.store import DatasetStore
-from workbench.study import load_study
-from workbench.study_report import gather, write_study_outputs
-from workbench.sweep import run_sweep
+from workbench.studies.study import load_study
+from workbench.studies.report import gather, write_study_outputs
+from workbench.studies.sweep import run_sweep
 
 WORKBENCH = [sys.executable, "-m", "workbench.cli"]
 

@@ -225,7 +225,7 @@ def rendered_imperfect_board(paper_rig_quarter):
 
     from scenes.render import render_view
     from scenes.truth import project_points
-    from workbench.experiments.checkerboard_views import sensor_spec_for
+    from workbench.experiments.calibration.views import sensor_spec_for
 
     rig = paper_rig_quarter
     spec = sensor_spec_for(rig, "left")

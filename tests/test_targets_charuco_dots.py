@@ -43,8 +43,8 @@ from measurement.calibration.targets import (CharucoSpec, DotGridSpec, charuco_p
                                              detect_dot_grid, dot_grid_points_mm)
 from scenes.targets import CharucoBoard, DotGrid
 from scenes.truth import project_points
-from workbench.experiments.calibration import _as_rig, score_against_truth
-from workbench.experiments.checkerboard_views import board_outline_mm, render_board_views, sensor_spec_for
+from workbench.experiments.calibration.run import _as_rig, score_against_truth
+from workbench.experiments.calibration.views import board_outline_mm, render_board_views, sensor_spec_for
 from workbench.poses import random_board_poses
 
 SCALE = 0.25

@@ -226,7 +226,7 @@ def test_truth_side_projection_of_a_camera_with_k3_and_thin_prism_equals_the_ins
     """camera_to_sensor_spec carries k3 and s1-s4 to the renderer's description; the truth side's projection
     (scenes.truth, its own implementation) then equals measurement.camera's within 1e-9 px, tilt included."""
     from scenes.truth import project_points
-    from workbench.experiments.checkerboard_views import camera_to_sensor_spec
+    from workbench.experiments.calibration.views import camera_to_sensor_spec
 
     cam = _camera(k3=0.8, alpha_deg=0.6, beta_deg=-4.5, **PRISM)
     X = _points()

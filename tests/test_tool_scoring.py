@@ -14,9 +14,9 @@ import xml.etree.ElementTree as ET
 import numpy as np
 import pytest
 
-from workbench.datasets import open_dataset, point_truth
+from workbench.scoring.datasets import open_dataset, point_truth
 from workbench.results import ResultFormatError, parse_columns, read_result
-from workbench.scoring import score_state
+from workbench.scoring.metrics import score_state
 
 STAGE_MM = 0.5
 
@@ -24,7 +24,7 @@ STAGE_MM = 0.5
 @pytest.fixture(scope="module")
 def rigid(tmp_path_factory):
     """A tiny rigid-motion dataset of the paper rig: reference and a 0.5 mm stage move."""
-    from workbench.experiments.rigid_motion_scenes import render_rigid_motion
+    from workbench.experiments.rigid_motion.scenes import render_rigid_motion
 
     out = tmp_path_factory.mktemp("rigid")
     render_rigid_motion("paper", out, scale=0.2, lens="pinhole", spp=4, states=[0.0, STAGE_MM], progress=False)
@@ -70,7 +70,7 @@ def test_point_truth_of_a_stage_move_is_the_stage_travel(rigid):
 
 def test_perfect_and_offset_3d_results_score_exactly(rigid, tmp_path):
     """A result written from the exported truth scores zero; +1 µm in U scores bias 1 µm, RMS 1 µm."""
-    from workbench.export import export_dataset
+    from workbench.scoring.export import export_dataset
 
     export_dataset(rigid, "native", tmp_path / "export", log=lambda *_: None)
     with open(tmp_path / "export" / "truth" / "points.csv") as f:
@@ -255,7 +255,7 @@ def test_dice_export_is_a_complete_dice_input(pair, tmp_path):
     """The DICe layout: input.xml parses, names images that exist (same pixels as the dataset), the subset file
     holds the ROI polygon, and the truth array has the image's shape."""
     from measurement.image_io import read_grey
-    from workbench.export import export_dataset
+    from workbench.scoring.export import export_dataset
 
     out = tmp_path / "dice"
     export_dataset(pair, "dice", out, log=lambda *_: None)
@@ -297,8 +297,8 @@ def test_exported_calibration_loads_back_and_its_reported_cost_is_true(rigid, tm
     model (our JSON, and our OpenCV YAML's named parameters), > 0.01 px where the paper rig's two-axis tilt does
     not fit (DICe's OpenCV tilt, VIC-3D and MatchID without tilt)."""
     from measurement.calibration.formats import load_any_calibration
-    from workbench.datasets import true_rig
-    from workbench.export import CALIBRATION_NAME, export_dataset
+    from workbench.scoring.datasets import true_rig
+    from workbench.scoring.export import CALIBRATION_NAME, export_dataset
 
     out = tmp_path / fmt
     record = export_dataset(rigid, fmt, out, log=lambda *_: None)

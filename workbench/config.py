@@ -23,7 +23,7 @@ import types
 import typing
 from pathlib import Path
 
-from measurement.files import atomic_write_text
+from labio.atomic import atomic_write_text
 
 
 class ConfigError(ValueError):

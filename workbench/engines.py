@@ -16,7 +16,7 @@ reach the engine: a template needs their placeholders, a function their keywords
 that cannot take one is refused before anything runs, naming the setting.
 
 The engine sees image files only (as with a real rig); the result is read by :mod:`workbench.results` and
-scored by :mod:`workbench.scoring`. An engine that fails, or writes no result file, is an error naming the
+scored by :mod:`workbench.scoring.metrics`. An engine that fails, or writes no result file, is an error naming the
 state and the command.
 """
 from __future__ import annotations
@@ -177,7 +177,7 @@ def array_engine(engine, workdir: Path, options: dict | None = None):
 
     import tifffile
 
-    from measurement.files import atomic_write_bytes
+    from labio.atomic import atomic_write_bytes
     from workbench.results import read_result
 
     counter = {"n": 0}

@@ -7,7 +7,7 @@ A command that writes a dataset (rendered views + ``truth.json``, stereo results
    unless ``overwrite``; with it, exactly the files the earlier dataset owns are deleted (its manifest first),
    nothing else. A hidden ``.workbench-pending.json`` then lists every file the write may leave behind, so an
    interrupted write is recognised (and can be cleared) later.
-2. writes its files (each one atomically, :mod:`measurement.files`), ``truth.json`` last;
+2. writes its files (each one atomically, :mod:`labio.atomic`), ``truth.json`` last;
 3. :func:`complete_folder`: ``manifest.json`` (the files, the settings) is written last and the pending marker
    removed. A folder whose manifest exists is complete; :func:`complete_manifest` says whether a folder holds a
    complete dataset whose files are all present (reuse of renders relies on it).
@@ -19,7 +19,7 @@ import json
 import os
 from pathlib import Path
 
-from measurement.files import atomic_write_text, atomic_writer
+from labio.atomic import atomic_write_text, atomic_writer
 
 MANIFEST_NAME = "manifest.json"
 PENDING_NAME = ".workbench-pending.json"
@@ -223,7 +223,7 @@ def save_figure(fig, path: str | Path, **savefig_kwargs) -> Path:
     """``fig.savefig`` through the atomic writer: rendered to memory, then written whole (format from the suffix)."""
     import io
 
-    from measurement.files import atomic_write_bytes
+    from labio.atomic import atomic_write_bytes
 
     path = Path(path)
     buffer = io.BytesIO()

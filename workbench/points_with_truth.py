@@ -23,7 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
-from measurement.files import atomic_write_text, atomic_writer
+from labio.atomic import atomic_write_text, atomic_writer
 from measurement.stereo_io import CSV_COLUMNS, state_rows
 
 TRUTH_COLUMNS = ("X_al", "Y_al", "Z_al", "U_al", "V_al", "W_al", "X_true", "Y_true", "Z_true", "U_true", "V_true",

@@ -16,7 +16,7 @@ Readers (``READERS``):
 
 Conventions after reading: x = column, y = row of the LEFT REFERENCE image with pixel centres at integer
 coordinates (OpenCV); 2-D displacement in px (deformed minus reference position); 3-D positions and
-displacements in mm in the tool's frame (``frame`` says which; scoring aligns it, :mod:`workbench.scoring`).
+displacements in mm in the tool's frame (``frame`` says which; scoring aligns it, :mod:`workbench.scoring.metrics`).
 """
 from __future__ import annotations
 

@@ -22,7 +22,7 @@ import time
 from pathlib import Path
 from typing import Callable
 
-from measurement.files import atomic_write_text
+from labio.atomic import atomic_write_text
 from workbench.manifest import complete_manifest
 
 PARTIAL = ".partial"

@@ -1,10 +1,10 @@
 """The schema of ``truth.json`` (rigid-motion and bending datasets): the parts both share, validated.
 
-Both loaders (:func:`workbench.experiments.rigid_motion_scenes.load_truth`,
-:func:`workbench.experiments.bending_scenes.load_bending_truth`) walk the file with
-:class:`measurement.schema.Node`, so every defect (missing key, wrong type, non-finite or out-of-range value,
+Both loaders (:func:`workbench.experiments.rigid_motion.scenes.load_truth`,
+:func:`workbench.experiments.bending.scenes.load_bending_truth`) walk the file with
+:class:`labio.schema.Node`, so every defect (missing key, wrong type, non-finite or out-of-range value,
 a matrix that is not a rotation, a dataclass field missing or unknown) is a
-:class:`~measurement.schema.FileFormatError` (a ``ValueError``) naming the file and the key, never a
+:class:`~labio.schema.FileFormatError` (a ``ValueError``) naming the file and the key, never a
 ``KeyError``/``TypeError`` or a silently substituted default.
 """
 from __future__ import annotations
@@ -13,7 +13,7 @@ from pathlib import Path, PurePath
 
 import numpy as np
 
-from measurement.schema import FileFormatError, Node, read_json_file
+from labio.schema import FileFormatError, Node, read_json_file
 from scenes.camera import EXTRA_LENS_TERMS, SensorSpec
 from scenes.specimens import BendingSpecimen
 

@@ -15,7 +15,7 @@ import numpy as np
 from measurement.image_io import to_uint8
 
 
-def _to_gray8(image: np.ndarray) -> np.ndarray:
+def to_gray8(image: np.ndarray) -> np.ndarray:
     """The 8-bit copy ``findChessboardCornersSB`` needs, scaled by the data's own range
     (:func:`measurement.image_io.to_uint8`): 12-bit data in 16 bits or floats in [0, 1] keep 256 grey levels
     (shifting to the top 8 bits left 12-bit data 16 levels, rounding left [0, 1] floats two)."""
@@ -153,7 +153,7 @@ def detect_checkerboard(image: np.ndarray, pattern_size: tuple[int, int] = (11, 
     end whose diagonally outer square is dark; or ``None``.
     """
     nx, ny = pattern_size
-    gray = _to_gray8(image)
+    gray = to_gray8(image)
     if max_side_px is not None and max(gray.shape) > max_side_px:
         # the pyramid: the smallest copy first, a larger one only where the board is not found on it
         sides = [s for s in DETECT_SEARCH_SIDES_PX if s < max_side_px] + [max_side_px]

@@ -1,15 +1,15 @@
 """Calibration files: a JSON with every parameter and its convention, and an OpenCV-readable YAML export.
 
 Both load back into :class:`CalibratedRig` with identical projections (the YAML stores every parameter as a
-double at full precision). Both are written atomically (:mod:`measurement.files`) and only after the content
+double at full precision). Both are written atomically (:mod:`labio.atomic`) and only after the content
 has passed the same validation as on loading, so a file is whole and loadable or not written at all.
 
-Loading validates every key the rig is built from (:mod:`measurement.schema`): required keys (a missing one is
+Loading validates every key the rig is built from (:mod:`labio.schema`): required keys (a missing one is
 never filled with 0 or a default), types (a string where a number belongs is refused, never read as
 1.8e308), finite values and physical ranges (:data:`RANGES`: ``0 < fx, fy < 1e6`` px, ``|tilt| <``
 :data:`~measurement.camera.MAX_TILT_DEG`, ``|k1|, |k2|, |p1|, |p2| < 1e3``, image size positive integers,
 R a proper rotation within 1e-6, ``0 < |T| < 1e6`` mm). Every defect raises
-:class:`~measurement.schema.FileFormatError` (a ``ValueError``) naming the file and the key.
+:class:`~labio.schema.FileFormatError` (a ``ValueError``) naming the file and the key.
 
 Cameras may carry terms beyond Table 1 (:data:`EXTRA_RANGES`): the radial r^6 coefficient ``k3``, the skew
 ``K[0, 1]`` (px) and OpenCV's thin prism ``s1``-``s4``. They are written only when non-zero (so files and hashes of
@@ -30,10 +30,10 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from measurement.calibration.stepwise import _TILT_MODEL, LENSES, MODELS, CameraCalibration, StereoCalibration
+from measurement.calibration.stepwise import TILT_MODEL, LENSES, MODELS, CameraCalibration, StereoCalibration
 from measurement.camera import EXTRA_NAMES, INTRINSIC_NAMES, MAX_TILT_DEG, TILT_MODELS, ScheimpflugCamera
-from measurement.files import atomic_write_text
-from measurement.schema import FileFormatError, Node, read_json_file, read_text_file
+from labio.atomic import atomic_write_text
+from labio.schema import FileFormatError, Node, read_json_file, read_text_file
 
 __all__ = ["FORMAT", "CONVENTION", "RANGES", "CalibratedRig", "FileFormatError", "calibration_to_dict",
            "save_calibration", "load_calibration", "export_opencv_yaml", "load_opencv_yaml", "rig_to_dict", "save_rig",
@@ -154,7 +154,7 @@ def opencv_distortion_cost_px(cam: ScheimpflugCamera, n: int = 21) -> float:
     rays = cam.rays(pixels)
     rays = rays / rays[:, 2:3]
     ours = cam.project(rays)
-    theirs = cv2.projectPoints(rays, np.zeros(3), np.zeros(3), cam.K, _opencv_distortion(cam))[0].reshape(-1, 2)
+    theirs = cv2.projectPoints(rays, np.zeros(3), np.zeros(3), cam.K, opencv_distortion(cam))[0].reshape(-1, 2)
     return float(np.max(np.linalg.norm(ours - theirs, axis=1)))
 
 
@@ -177,9 +177,9 @@ def _refuse_unloadable(load) -> None:
 def _camera(values: dict[str, float], width: int, height: int, tilt_model: str, model: str, where: Node,
             key_of) -> ScheimpflugCamera:
     """The camera of validated values, checked against the file's model; ``key_of(name)`` names a key."""
-    if tilt_model != _TILT_MODEL[model]:
+    if tilt_model != TILT_MODEL[model]:
         raise where.error(f"tilt model {tilt_model!r} contradicts the file's model {model!r} "
-                          f"(which uses {_TILT_MODEL[model]!r})", key=key_of("tilt_model"))
+                          f"(which uses {TILT_MODEL[model]!r})", key=key_of("tilt_model"))
     if model == "pinhole":
         for n in ("alpha_deg", "beta_deg"):
             if values[n] != 0.0:
@@ -297,7 +297,7 @@ def export_opencv_yaml(rig: CalibratedRig | StereoCalibration, path: str | Path)
     fs.write("image_height", int(rig.left.height))
     for side, cam in (("1", rig.left), ("2", rig.right)):
         fs.write(f"K{side}", cam.K)
-        fs.write(f"D{side}", _opencv_distortion(cam))
+        fs.write(f"D{side}", opencv_distortion(cam))
         # cv2.projectPoints reads fx, fy, cx, cy of K only, so a skew makes K/D inexact for OpenCV's projection
         exact = (cam.tilt_model == "opencv" or cam.alpha_deg == 0.0 or cam.beta_deg == 0.0) and cam.skew == 0.0
         fs.write(f"D{side}_exact", int(exact))
@@ -314,7 +314,7 @@ def export_opencv_yaml(rig: CalibratedRig | StereoCalibration, path: str | Path)
     atomic_write_text(path, text)
 
 
-def _opencv_distortion(cam: ScheimpflugCamera) -> np.ndarray:
+def opencv_distortion(cam: ScheimpflugCamera) -> np.ndarray:
     """OpenCV's 14 coefficients (k1, k2, p1, p2, k3, k4, k5, k6, s1..s4, tau_x, tau_y) of ``cam``, (1, 14)."""
     dist = np.zeros((1, 14))
     dist[0, :5] = cam.k1, cam.k2, cam.p1, cam.p2, cam.k3
@@ -545,7 +545,7 @@ def _rig_from_yaml_text(text: str, path) -> CalibratedRig:
         cam = _camera(values, width, height, tilt_model, model, doc, lambda n: f"{name}_{n}")
         # K and D are OpenCV's view of the same camera: if present they must agree with the named scalars,
         # which are what is loaded (an edit of K1 alone would otherwise be ignored silently).
-        for key, shape, expected in ((f"K{side}", (3, 3), cam.K), (f"D{side}", (1, 14), _opencv_distortion(cam))):
+        for key, shape, expected in ((f"K{side}", (3, 3), cam.K), (f"D{side}", (1, 14), opencv_distortion(cam))):
             node = doc.get(key)
             if node is not None and not _close(_opencv_matrix(node, shape), expected):
                 raise node.error(f"disagrees with the {name}_* parameters, which are what is loaded "
@@ -619,7 +619,7 @@ def opencv_camera_yaml_text(cal: CameraCalibration | ScheimpflugCamera, path: st
     fs.write("image_width", int(cam.width))
     fs.write("image_height", int(cam.height))
     fs.write("camera_matrix", cam.K)
-    fs.write("distortion_coefficients", _opencv_distortion(cam))
+    fs.write("distortion_coefficients", opencv_distortion(cam))
     if isinstance(cal, CameraCalibration):
         fs.write("avg_reprojection_error", float(cal.rms_px))
     fs.write("tilt_model", cam.tilt_model)

@@ -28,7 +28,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from measurement.calibration.stepwise import (LENS_TERMS, CalibrationError, CameraCalibration, StereoCalibration,
-                                              _free_intrinsics, _refine_camera, calibrate_camera, calibrate_stereo,
+                                              free_intrinsics, refine_camera, calibrate_camera, calibrate_stereo,
                                               canonical_lens, project_views)
 from measurement.calibration.zhang import homography, pose_from_homography
 
@@ -50,7 +50,7 @@ def optional_terms(model: str, lens: str) -> tuple[str, ...]:
 
 def n_intrinsics(model: str, lens: str) -> int:
     """How many intrinsics ``model`` and ``lens`` estimate per camera."""
-    return len(_free_intrinsics(model, canonical_lens(lens)))
+    return len(free_intrinsics(model, canonical_lens(lens)))
 
 
 def _camera_terms(c: CameraCalibration, model: str) -> dict:
@@ -116,7 +116,7 @@ def held_out_errors(train: CameraCalibration, board_mm: np.ndarray, points: np.n
     out = np.zeros((len(points), 2))
     for w, p in enumerate(points):
         rvec, tvec = _pose_for_view(train.camera, board_mm, p)
-        cam, rv, tv, _ = _refine_camera(train.camera, (), rvec[None], tvec[None], board_mm, p[None], "schur-lm")
+        cam, rv, tv, _ = refine_camera(train.camera, (), rvec[None], tvec[None], board_mm, p[None], "schur-lm")
         r = project_views(cam, rv, tv, board_mm)[0] - p
         found = np.all(np.isfinite(p), axis=-1)
         out[w] = float(np.sum(r[found] ** 2)), float(found.sum())

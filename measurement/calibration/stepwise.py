@@ -1,6 +1,7 @@
 """The paper's stepwise Scheimpflug stereo calibration (§2.2), with Levenberg-Marquardt-type least squares.
 
-Per camera:
+Per camera::
+
   step 1  alpha, beta from a datasheet guess, principal point at the image centre, no distortion; fx, fy and
           the board poses from homographies (Zhang, :mod:`measurement.calibration.zhang`);
   step 2  refine {fx, fy, alpha, beta, poses};
@@ -8,7 +9,9 @@ Per camera:
   step 4  refine {fx, fy, k1, k2, p1, p2, poses} (and k3 with ``lens="brown5"``);
   final   (``refine_all``, default) all of the model's intrinsics and the poses together (steps 2-4 alone stop
           ~0.3 px short of the least-squares solution with Table 1's distortion, see :func:`calibrate_camera`);
-then for the pair:
+
+then for the pair::
+
   step 5  the right camera's pose relative to the left, initialised from every view by eq (11) (written here
           for ``X_right = R X_left + T``: ``R = R_r R_l^T``, ``T = t_r - R t_l``) and refined with the left board
           poses over both cameras' corners (eq 12), intrinsics fixed;
@@ -53,7 +56,7 @@ from measurement.calibration.zhang import focal_lengths_from_homographies, homog
 from measurement.camera import INTRINSIC_NAMES, ScheimpflugCamera
 
 MODELS = ("rmm", "opencv-tilt", "pinhole")
-_TILT_MODEL = {"rmm": "rmm", "opencv-tilt": "opencv", "pinhole": "rmm"}
+TILT_MODEL = {"rmm": "rmm", "opencv-tilt": "opencv", "pinhole": "rmm"}
 #: Least-squares solvers (module docstring): structured LM with Schur complement, or scipy's MINPACK LM.
 SOLVERS = ("schur-lm", "minpack-lm")
 #: Lens distortion models: the paper's four Brown terms, five with the r^6 radial term k3, or all of this camera
@@ -235,7 +238,7 @@ def _mono_residual_fn(camera, free, board_mm, image_points):
     return residual
 
 
-def _refine_camera(camera, free, rvecs, tvecs, board_mm, image_points, solver):
+def refine_camera(camera, free, rvecs, tvecs, board_mm, image_points, solver):
     """Least squares over the ``free`` intrinsics and all poses; returns (camera, rvecs, tvecs, result)."""
     V, N = image_points.shape[:2]
     x0 = np.concatenate([[getattr(camera, n) for n in free], np.hstack([rvecs, tvecs]).ravel()])
@@ -288,7 +291,7 @@ def calibrate_camera(image_points: np.ndarray, board_mm: np.ndarray, image_size:
         raise CalibrationError(f"{name}: {err}") from None
     alpha, beta = (0.0, 0.0) if model == "pinhole" else tilt_guess_deg
     camera = ScheimpflugCamera(fx=fx, fy=fy, cx=cx, cy=cy, alpha_deg=alpha, beta_deg=beta, width=width,
-                               height=height, tilt_model=_TILT_MODEL[model])
+                               height=height, tilt_model=TILT_MODEL[model])
     K = camera.K
     poses = [pose_from_homography(H, K) for H in Hs]
     rvecs = np.array([p[0] for p in poses])
@@ -299,16 +302,16 @@ def calibrate_camera(image_points: np.ndarray, board_mm: np.ndarray, image_size:
         if model == "pinhole":
             free = tuple(n for n in free if n not in ("alpha_deg", "beta_deg"))
         free = _with_k3(free, lens)
-        camera, rvecs, tvecs, _ = _refine_camera(camera, free, rvecs, tvecs, board_mm, image_points, solver)
+        camera, rvecs, tvecs, _ = refine_camera(camera, free, rvecs, tvecs, board_mm, image_points, solver)
         steps.append((step_name, free, _rms(project_views(camera, rvecs, tvecs, board_mm) - image_points)))
     if refine_all:
-        free = _free_intrinsics(model, lens)
-        camera, rvecs, tvecs, _ = _refine_camera(camera, free, rvecs, tvecs, board_mm, image_points, solver)
+        free = free_intrinsics(model, lens)
+        camera, rvecs, tvecs, _ = refine_camera(camera, free, rvecs, tvecs, board_mm, image_points, solver)
         steps.append(("final", free, _rms(project_views(camera, rvecs, tvecs, board_mm) - image_points)))
     return _finish_camera(camera, rvecs, tvecs, board_mm, image_points, model, steps, lens)
 
 
-def _free_intrinsics(model: str, lens: str = "brown4") -> tuple[str, ...]:
+def free_intrinsics(model: str, lens: str = "brown4") -> tuple[str, ...]:
     """The intrinsics ``model`` and ``lens`` estimate: Table 1's ten (no tilt for ``pinhole``) and the lens model's
     optional terms (:data:`LENS_TERMS`)."""
     return _with_k3(tuple(n for n in INTRINSIC_NAMES if not (model == "pinhole" and n in ("alpha_deg", "beta_deg"))),
@@ -317,7 +320,7 @@ def _free_intrinsics(model: str, lens: str = "brown4") -> tuple[str, ...]:
 
 def _finish_camera(camera, rvecs, tvecs, board_mm, image_points, model, steps, lens="brown4") -> CameraCalibration:
     """Residual statistics and parameter uncertainties (Jacobian over all intrinsics and poses)."""
-    free = _free_intrinsics(model, lens)
+    free = free_intrinsics(model, lens)
     V, N = image_points.shape[:2]
     x = np.concatenate([[getattr(camera, n) for n in free], np.hstack([rvecs, tvecs]).ravel()])
     k = len(free)
@@ -464,12 +467,12 @@ def calibrate_stereo(points_left: np.ndarray, points_right: np.ndarray, board_mm
     found_all = np.concatenate([np.all(np.isfinite(points_left), -1).ravel(), np.all(np.isfinite(points_right), -1).ravel()])
     steps.append(("step 5", ("stereo R, T", "left poses"), _rms(r.reshape(-1, 2)[found_all])))
     if joint:
-        names = (_free_intrinsics(model, lens), _free_intrinsics(model, lens))
+        names = (free_intrinsics(model, lens), free_intrinsics(model, lens))
         left, right, R, T, poses, fn, x, k = solve(left, right, names, R, T, poses)
         r = fn(x)
         steps.append(("joint", ("all intrinsics", "stereo R, T", "left poses"), _rms(r.reshape(-1, 2)[found_all])))
     # Uncertainties of everything at the solution (all intrinsics of both cameras free).
-    names = (_free_intrinsics(model, lens), _free_intrinsics(model, lens))
+    names = (free_intrinsics(model, lens), free_intrinsics(model, lens))
     fn = _stereo_residual_fn(left, right, board_mm, points_left, points_right, names)
     x = np.concatenate([[getattr(left, n) for n in names[0]], [getattr(right, n) for n in names[1]],
                         Rotation.from_matrix(R).as_rotvec(), T, poses.ravel()])
@@ -558,7 +561,7 @@ def compare_lens_models(points_left: np.ndarray, points_right: np.ndarray, board
                          "corner_effect_px": k3_corner_effect_px(cam5.camera)}
     # residual sums of squares of the two fits and the residual variance of the larger model
     ssr = {lens: sum(c.rms_px[s] ** 2 * n_found[s] for s in ("left", "right")) for lens, c in fits.items()}
-    n_intr = len(_free_intrinsics(c5.model, "brown5"))
+    n_intr = len(free_intrinsics(c5.model, "brown5"))
     dof = 2 * (n_found["left"] + n_found["right"]) - (2 * n_intr + 6 + 6 * V)
     chi2_drop = (ssr["brown4"] - ssr["brown5"]) / (ssr["brown5"] / max(dof, 1))
     supported = [s for s in ("left", "right") if cameras[s]["z"] >= z_threshold]

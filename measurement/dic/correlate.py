@@ -17,7 +17,7 @@ import numba
 import numpy as np
 from scipy import ndimage
 
-from measurement.files import atomic_writer
+from labio.atomic import atomic_writer
 
 from . import bspline
 from .grid import PoiGrid, check_subset_size, poi_grid
@@ -165,7 +165,7 @@ class DICResult:
     def to_csv(self, path: str | Path) -> Path:
         """Write ``x,y,u,v,zncc,iterations,status,status_name`` and the shape parameters, one row per point.
 
-        The file is written atomically (:func:`measurement.files.atomic_writer`): whole or not at all.
+        The file is written atomically (:func:`labio.atomic.atomic_writer`): whole or not at all.
         """
         path = Path(path)
         names = [Status(int(s)).name.lower() for s in self.status]

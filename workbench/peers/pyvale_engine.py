@@ -193,10 +193,10 @@ def run(reference, deformed, out, *, subset_px: int = 33, step_px: int = 8, roi_
     TypeError
         On an option ``calculate_2d`` does not take or that this engine sets itself.
     """
-    from measurement.files import atomic_write_bytes
+    from labio.atomic import atomic_write_bytes
     from measurement.image_io import read_grey
 
-    dic = _import_pyvale_dic()
+    dic = import_pyvale_dic()
     subset_px, step_px = int(subset_px), int(step_px)
     if order not in SHAPE_FUNCTIONS:
         raise ValueError(f"order must be 1 (affine) or 2 (quadratic), got {order!r}")
@@ -427,7 +427,7 @@ def _column(rows: list[list[str]], index: int, name: str, path: Path) -> np.ndar
     return values
 
 
-def _import_pyvale_dic():
+def import_pyvale_dic():
     """``pyvale.dic``, imported only when an engine runs (it is an optional, heavy dependency: ~5 s)."""
     had_stray_log = STRAY_LOG.exists()
     try:

@@ -6,7 +6,7 @@ direction, Euler angles, units, camera numbering, pixel origin). Writers convert
 with :func:`~measurement.calibration.formats.nearest.nearest_camera` and return a :class:`ConversionReport` saying
 per camera what the format could not hold and what that costs in pixels; they write atomically, and only text that
 loads back to the converted rig. Loaders never execute content (``xml.etree`` without entities) and turn every
-defect into a :class:`~measurement.schema.FileFormatError` naming the file and the key.
+defect into a :class:`~labio.schema.FileFormatError` naming the file and the key.
 
 Public API::
 
@@ -23,7 +23,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from measurement.calibration.io import CalibratedRig, load_calibration, save_rig
-from measurement.schema import FileFormatError
+from labio.schema import FileFormatError
 
 from . import _common
 from ._common import CameraConversion, ConversionReport

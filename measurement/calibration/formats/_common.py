@@ -11,8 +11,8 @@ import numpy as np
 
 from measurement.calibration.io import MAX_BASELINE_MM, CalibratedRig
 from measurement.camera import ScheimpflugCamera
-from measurement.files import atomic_write_text
-from measurement.schema import FileFormatError, Node
+from labio.atomic import atomic_write_text
+from labio.schema import FileFormatError, Node
 
 from .nearest import EXACT_PX, ConversionCost, TargetModel, nearest_rig, projection_cost_px
 
@@ -211,7 +211,7 @@ _ENCODINGS = {"utf-8": "utf-8", "utf8": "utf-8", "iso-8859-1": "latin-1", "latin
 
 def read_bytes(path, what: str) -> bytes:
     """The bytes of ``path``; FileFormatError if missing, not a file, empty, too large or binary."""
-    from measurement.schema import read_file_bytes
+    from labio.schema import read_file_bytes
 
     return read_file_bytes(path, what, max_bytes=MAX_FILE_BYTES)
 

@@ -41,7 +41,7 @@ import numpy as np
 
 from measurement.calibration.io import MAX_IMAGE_PX, RANGES, CalibratedRig, EXTRA_RANGES
 from measurement.camera import MAX_TILT_DEG, ScheimpflugCamera
-from measurement.schema import FileFormatError, Node
+from labio.schema import FileFormatError, Node
 
 from . import _common as C
 from .nearest import DICE_MODEL

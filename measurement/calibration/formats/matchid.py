@@ -31,7 +31,7 @@ import numpy as np
 
 from measurement.calibration.io import EXTRA_RANGES, MAX_IMAGE_PX, RANGES, CalibratedRig
 from measurement.camera import ScheimpflugCamera
-from measurement.schema import FileFormatError, Node
+from labio.schema import FileFormatError, Node
 
 from . import _common as C
 from .nearest import MATCHID_MODEL

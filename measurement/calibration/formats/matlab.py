@@ -59,8 +59,8 @@ import numpy as np
 
 from measurement.calibration.io import EXTRA_RANGES, MAX_IMAGE_PX, RANGES, CalibratedRig
 from measurement.camera import ScheimpflugCamera
-from measurement.files import atomic_write_bytes
-from measurement.schema import FileFormatError, Node, read_file_bytes
+from labio.atomic import atomic_write_bytes
+from labio.schema import FileFormatError, Node, read_file_bytes
 
 from . import _common as C
 from .nearest import TargetModel

@@ -1,0 +1,118 @@
+"""``workbench score``: another tool's results (or an engine run) against the truth."""
+from __future__ import annotations
+
+from pathlib import Path
+
+from workbench.commands.options import positive_int_arg
+
+
+def add_parser(sub) -> None:
+    """The ``score`` subcommand."""
+    from workbench.results import LENGTH_UNITS_MM, PIXEL_ORIGINS, READERS
+    from workbench.scoring.metrics import ALIGNMENTS
+
+    sc = sub.add_parser("score", help="score another tool's result files (or an engine run) against the truth")
+    sc.add_argument("dataset", type=Path, help="the dataset folder or scenario file the results were computed on")
+    sc.add_argument("results", type=Path, nargs="*", help="result files, one per deformed state (the state is the "
+                                                          "number the file name ends with, or --state)")
+    sc.add_argument("--format", choices=READERS, default=None,
+                    help="result file format (default: the engine's, else native)")
+    sc.add_argument("--columns", default=None, help="for --format csv: x=COL,y=COL,u=COL,v=COL[,X=..,Y=..,Z=..,"
+                                                    "U=..,V=..,W=..,valid=COL]")
+    sc.add_argument("--pixel-origin", choices=tuple(PIXEL_ORIGINS), default="center",
+                    help="the tool's pixel coordinates: center (OpenCV, integer centres), corner (0 at the pixel's "
+                         "corner), one-based (MATLAB)")
+    sc.add_argument("--length-unit", choices=tuple(LENGTH_UNITS_MM), default="mm", help="unit of 3-D columns")
+    sc.add_argument("--state", type=positive_int_arg, default=None, help="the deformed state of a single result file")
+    sc.add_argument("--align", choices=ALIGNMENTS, default="none",
+                    help="3-D frame: none (the tool reports the left camera frame) or rigid (one rigid fit of its "
+                         "reference positions onto the truth)")
+    sc.add_argument("--engine", default=None, help="run this engine on the left images of every deformed state "
+                                                   "first: 'cmd {ref} {def} {out}' or module:function")
+    sc.add_argument("--subset", type=positive_int_arg, default=33, help="subset size passed to --engine, px")
+    sc.add_argument("--step", type=positive_int_arg, default=8, help="step passed to --engine, px")
+    sc.add_argument("--store", type=Path, default=None, help="render store (default $WORKBENCH_STORE)")
+    sc.add_argument("--out", type=Path, required=True)
+
+
+
+def _states_of(dataset, paths: list[Path], state: int | None) -> list[tuple[int, Path]]:
+    from workbench.results import state_of
+
+    if state is not None:
+        if len(paths) != 1:
+            raise ValueError(f"--state names the state of one result file, got {len(paths)} files")
+        return [(state, paths[0])]
+    if len(paths) == 1 and dataset.n_states == 2:
+        return [(1, paths[0])]
+    out = []
+    for p in paths:
+        k = state_of(p)
+        if k is None:
+            raise ValueError(f"{p}: the file name ends with no state number; give --state")
+        if k == 0 and len(paths) > 1:
+            print(f"  {p}: state 0 is the reference (nothing to score), left out")
+            continue
+        out.append((k, p))
+    return sorted(out)
+
+
+def score_command(args) -> int:
+    from workbench.scoring.datasets import open_dataset, subset_roi_xyxy_px
+    from workbench.engines import parse_engine, run_engine
+    from workbench.results import read_result
+    from workbench.scoring.metrics import score_state, write_score_report
+
+    dataset = open_dataset(args.dataset, args.store)
+    notes = []
+    fmt = args.format
+    paths = list(args.results)
+    if args.engine:
+        if paths:
+            raise ValueError("give result files or --engine, not both")
+        engine = parse_engine(args.engine)
+        fmt = fmt or engine.result_format or "native"
+        roi = subset_roi_xyxy_px(dataset, args.subset)
+        runs = args.out / "engine"
+        for k in range(1, dataset.n_states):
+            target = runs / f"result_{k:02d}.csv"
+            info = run_engine(engine, dataset.images[0]["left"], dataset.images[k]["left"], target,
+                              subset_px=args.subset, step_px=args.step, roi_xyxy_px=roi)
+            print(f"  state {k} ({dataset.labels[k]}): engine ran in {info['seconds']:.1f} s")
+            paths.append(target)
+        notes.append(f"engine: {args.engine} (subset {args.subset} px, step {args.step} px, ROI {roi}) on the left "
+                     "images (2-D)")
+    if not paths:
+        raise ValueError("no result files and no --engine")
+    fmt = fmt or "native"
+    scores, tool = [], None
+    for state, path in _states_of(dataset, paths, args.state):
+        result = read_result(path, fmt, args.columns, args.pixel_origin, args.length_unit)
+        tool = tool or result.tool
+        s = score_state(dataset, state, result, args.align)
+        scores.append(s)
+        m = s.metrics
+        line = f"state {state} ({m['label']}): {m['valid_points']}/{m['truth_points']} points scored"
+        if m["not_measured_points"]:
+            line += f" ({m['not_measured_points']} not measured: NaN or flagged by the tool, left out)"
+        if m["rows_without_position"]:
+            line += f"; {m['rows_without_position']} rows without a finite x, y left out"
+        if m["valid_points"] == 0:
+            line += "; no point on the specimen to score"
+        elif "bias_u_px" in m:
+            line += f", u bias {m['bias_u_px']:+.4f} px rms {m['rms_u_px']:.4f}, v bias {m['bias_v_px']:+.4f} rms {m['rms_v_px']:.4f}"
+        if m["valid_points"] and "bias_U_um" in m:
+            line += f", 3-D error rms {m['rms_um']:.3g} µm (max {m['max_um']:.3g})"
+        if "frame_hint" in m:
+            notes.append(f"state {state}: {m['frame_hint']}")
+            print(f"  warning: {m['frame_hint']}")
+        if m["outside_points"]:
+            line += f"; {m['outside_points']} points off the specimen left out"
+        print(line)
+    doc = write_score_report(args.out, dataset, scores, tool or fmt, paths, notes)
+    print(f"wrote {args.out / 'report.md'} and {args.out / 'metrics.json'}")
+    return 0 if doc["states"] else 1
+
+
+#: The handler of each (command, subcommand) this module adds.
+HANDLERS = {('score', None): score_command}

@@ -1,0 +1,158 @@
+"""``workbench stereo``: stereo-DIC of an image sequence with a calibration file."""
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from workbench.commands.options import add_auto_roi_options, auto_roi_settings, fraction_arg, input_file, output_folder, paired_globs, poi_grid, positive_float_arg, positive_int_arg, read_image_for, resolved, roi_arg, size_text, subset_arg, zncc_arg
+
+
+def add_parser(sub) -> None:
+    """The ``stereo`` subcommand."""
+    from measurement.stereo_dic import MAX_MEDIAN_RESIDUAL_PX, MIN_MEASURED_FRACTION
+
+    st = sub.add_parser("stereo", help="stereo-DIC of an image sequence with a calibration file (real or rendered)")
+    st.add_argument("--calib", type=Path, required=True, help="calibration JSON (workbench calibrate) or OpenCV YAML")
+    st.add_argument("--left-ref", type=Path, required=True, help="left reference image")
+    st.add_argument("--right-ref", type=Path, required=True, help="right reference image")
+    st.add_argument("--left", required=True, help="glob of left deformed images (sorted; paired with --right)")
+    st.add_argument("--right", required=True, help="glob of right deformed images")
+    st.add_argument("--roi", type=roi_arg, default=None, help="rectangle of points on the left reference X0,Y0,X1,Y1")
+    st.add_argument("--mask", type=Path, default=None,
+                    help="image (the left reference's size) whose non-zero pixels may hold points of interest")
+    st.add_argument("--subset", type=subset_arg, default=65, help="subset size (odd, px), default 65")
+    st.add_argument("--step", type=positive_int_arg, default=5, help="grid step (px), default 5")
+    st.add_argument("--order", type=int, choices=(1, 2), default=2)
+    st.add_argument("--min-zncc", type=zncc_arg, default=0.8)
+    st.add_argument("--max-residual-px", type=positive_float_arg, default=MAX_MEDIAN_RESIDUAL_PX,
+                    help="refuse the reference or a state whose median triangulation residual is above this "
+                         f"(px), default {MAX_MEDIAN_RESIDUAL_PX:g}")
+    st.add_argument("--min-measured-fraction", type=fraction_arg, default=MIN_MEASURED_FRACTION,
+                    help="refuse the reference (of its points) or a state (of the reference's points) measuring less "
+                         f"than this fraction, default {MIN_MEASURED_FRACTION:g}")
+    st.add_argument("--auto-roi", action="store_true",
+                    help="automatic ROI: points whose left-reference subset lacks texture are flagged low_texture "
+                         "and not matched; matches that disagree with their neighbours are flagged inconsistent")
+    add_auto_roi_options(st)
+    st.add_argument("--overwrite", action="store_true",
+                    help="replace earlier results in --out (deletes exactly the files its manifest.json lists)")
+    st.add_argument("--out", type=Path, required=True,
+                    help="output folder (CSV + VTK per state, summary.csv, manifest.json); exit 1 if a state failed")
+
+
+def load_rig(path: Path, image_size_px: tuple[int, int] | None = None):
+    """Any calibration file the instrument reads (JSON, OpenCV YAML/XML, DICe, VIC-3D, MatchID: detected from the
+    content); ``image_size_px`` for a format that holds none (MatchID)."""
+    from measurement.calibration.formats import load_any_calibration
+
+    if path.is_dir():
+        raise ValueError(f"--calib {path} is a directory, not a calibration file")
+    if not path.is_file():
+        raise ValueError(f"calibration file not found: {path}")
+    return load_any_calibration(path, image_size_px=image_size_px)
+
+
+def _check_against_calibration(image: np.ndarray, camera, what: str) -> None:
+    if image.shape != (camera.height, camera.width):
+        raise ValueError(f"{what} is {size_text(image)} but the calibration is for {camera.width} x {camera.height} px")
+
+
+def stereo_command(args) -> int:
+    from measurement.dic import DICSettings
+    from measurement.stereo_dic import StereoMatchError, StereoQualityError, measure_state, reference_shape
+    from measurement.stereo_io import write_state_csv, write_state_summary, write_state_vtk
+    from workbench.manifest import complete_folder, prepare_folder
+
+    # Everything is checked before the first match and the first write.
+    input_file(args.left_ref, "--left-ref")
+    left_ref = read_image_for(args.left_ref, "--left-ref")     # its size is what a MatchID file lacks
+    rig = load_rig(args.calib, (left_ref.shape[1], left_ref.shape[0]))
+    input_file(args.right_ref, "--right-ref")
+    if resolved(args.left_ref) == resolved(args.right_ref):
+        raise ValueError(f"--left-ref and --right-ref are the same file ({args.left_ref})")
+    left_files, right_files = paired_globs(args.left, args.right)
+    output_folder(args.out)
+    right_ref = read_image_for(args.right_ref, "--right-ref")
+    _check_against_calibration(left_ref, rig.left, f"--left-ref {args.left_ref}")
+    _check_against_calibration(right_ref, rig.right, f"--right-ref {args.right_ref}")
+    for fl, fr in zip(left_files, right_files):
+        _check_against_calibration(read_image_for(fl, "left image"), rig.left, f"left image {fl}")
+        _check_against_calibration(read_image_for(fr, "right image"), rig.right, f"right image {fr}")
+    mask = None
+    if args.mask is not None:
+        mask_image = read_image_for(args.mask, "--mask")
+        if mask_image.shape[:2] != left_ref.shape[:2]:
+            raise ValueError(f"--mask {args.mask} is {size_text(mask_image)} but the left reference is {size_text(left_ref)}")
+        mask = mask_image != 0 if mask_image.ndim == 2 else np.any(mask_image != 0, axis=-1)
+    poi_grid(left_ref, args, mask, what="left reference image")
+    auto_roi = auto_roi_settings(args)
+    settings = DICSettings(subset_size=args.subset, step=args.step, order=args.order, min_zncc=args.min_zncc)
+    names = [f"state_{k:03d}" for k in range(len(left_files))]
+    planned = ["reference.csv", "reference.vtk", "summary.csv"] + [f"{n}.{e}" for n in names for e in ("csv", "vtk")]
+    prepare_folder(args.out, "stereo", planned, overwrite=args.overwrite, dry_run=True)
+    thresholds = dict(max_median_residual_px=args.max_residual_px, min_measured_fraction=args.min_measured_fraction)
+    hint = (f" (calibration {args.calib}; thresholds: --max-residual-px {args.max_residual_px:g}, "
+            f"--min-measured-fraction {args.min_measured_fraction:g})")
+
+    try:
+        shape = reference_shape(rig.left, rig.right, rig.R_right_from_left, rig.T_right_from_left_mm, left_ref,
+                                right_ref, settings, roi=args.roi, mask=mask, auto_roi=auto_roi, **thresholds)
+    except StereoQualityError as err:
+        raise ValueError(f"{err}{hint}") from None
+    prepare_folder(args.out, "stereo", planned, overwrite=args.overwrite)
+    written = [write_state_csv(args.out / "reference.csv", shape).name,
+               write_state_vtk(args.out / "reference.vtk", shape).name]
+    q = shape.quality
+    print(f"reference: {q.measured}/{shape.x.size} points triangulated, median residual {q.median_residual_px:.4f} px, "
+          f"95th percentile {q.p95_residual_px:.4f} px")
+    if shape.auto_roi_report is not None:
+        print(f"reference {shape.auto_roi_report.summary()}")
+    rows = [{"state": "reference", "left": str(args.left_ref), "right": str(args.right_ref), "quality": q}]
+    from tqdm import tqdm
+
+    from measurement.image_io import read_grey
+    skipped = []
+    for k, (fl, fr) in enumerate(tqdm(list(zip(left_files, right_files)), desc="stereo states")):
+        what = f"state {k} ({fl}, {fr})"
+        try:
+            state = measure_state(rig.left, rig.right, rig.R_right_from_left, rig.T_right_from_left_mm, shape,
+                                  left_ref, read_grey(fl), read_grey(fr), settings, name=what, **thresholds)
+        except StereoMatchError as err:
+            message = f"{err}{hint}" if isinstance(err, StereoQualityError) else f"{what}: {err}"
+            tqdm.write(f"workbench stereo: state {k} skipped: {message}", file=sys.stderr)
+            skipped.append(k)
+            rows.append({"state": names[k], "left": fl, "right": fr, "quality": getattr(err, "quality", None),
+                         "error": message})
+            continue
+        written += [write_state_csv(args.out / f"{names[k]}.csv", shape, state).name,
+                    write_state_vtk(args.out / f"{names[k]}.vtk", shape, state).name]
+        q = state.quality
+        rows.append({"state": names[k], "left": fl, "right": fr, "quality": q,
+                     "mean_D_mm": float(np.nanmean(state.D_mm[state.valid]))})
+        tqdm.write(f"state {k} ({Path(fl).name}, {Path(fr).name}): {q.measured}/{q.points} points, median residual "
+                   f"{q.median_residual_px:.4f} px, 95th percentile {q.p95_residual_px:.4f} px, mean D "
+                   f"{rows[-1]['mean_D_mm']:.4f} mm")
+        if state.auto_roi_report is not None:
+            tqdm.write(f"state {k} {state.auto_roi_report.summary()}")
+    written.append(write_state_summary(args.out / "summary.csv", rows).name)
+    complete_folder(args.out, "stereo", written,
+                    {"calib": str(args.calib), "left_ref": str(args.left_ref), "right_ref": str(args.right_ref),
+                     "left": args.left, "right": args.right, "roi": args.roi,
+                     "mask": None if args.mask is None else str(args.mask), "subset": args.subset,
+                     "step": args.step, "order": args.order, "min_zncc": args.min_zncc, **thresholds,
+                     "auto_roi": None if auto_roi is None else vars(auto_roi) | {"noise_sigma_used_grey":
+                                                                                  shape.noise_sigma_grey},
+                     "skipped_states": skipped})
+    print(f"wrote {args.out} ({len(left_files) - len(skipped)} of {len(left_files)} states; summary.csv)")
+    if skipped:
+        print(f"workbench stereo: error: {len(skipped)} of {len(left_files)} states could not be measured (states "
+              f"{', '.join(map(str, skipped))}; see the messages above and {args.out / 'summary.csv'})",
+              file=sys.stderr)
+        return 1
+    return 0
+
+
+#: The handler of each (command, subcommand) this module adds.
+HANDLERS = {('stereo', None): stereo_command}

@@ -1,0 +1,273 @@
+"""Rendered datasets as other tools see them: images per state and camera, the true rig, and the truth at any point.
+
+A dataset is a folder of the render store (:mod:`workbench.store`) or any folder a render command wrote
+(``manifest.json`` names its kind): ``dic2d`` (a 2-D reference/deformed pair), ``rigid-motion`` and
+``bending`` (stereo sequences: state 0 is the reference). :func:`open_dataset` also takes a scenario file
+(TOML/JSON, :mod:`workbench.scenario`) and renders its dataset through the store first.
+
+The truth of a point is defined, as everywhere in this project, at a pixel of the **left reference image**:
+its chief ray meets the specimen at a material point; :func:`point_truth` gives that point's position in
+every state (left camera frame, mm), where it appears in the left and right images of every state (px) and
+so the 2-D displacement a tool tracking it in the left images must find. Pixel convention as OpenCV: x =
+column, y = row, pixel centres at integer coordinates.
+"""
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from workbench.manifest import read_manifest
+
+#: Dataset kinds another tool can be run on, and whether they are stereo.
+KINDS = {"dic2d": False, "rigid-motion": True, "bending": True}
+
+
+class DatasetError(ValueError):
+    """A folder that is not a usable dataset (the message names the folder and what is wrong)."""
+
+
+@dataclass(frozen=True)
+class Dataset:
+    """A rendered dataset.
+
+    Attributes
+    ----------
+    folder : Path
+    kind : str, one of :data:`KINDS`
+    images : tuple of dicts, one per state, ``{"left": Path[, "right": Path]}``; state 0 is the reference
+    image_size_px : (width, height)
+    labels : tuple of str, what each state is (``"reference"``, ``"stage 2 mm"``, ``"1800 N"``)
+    """
+
+    folder: Path
+    kind: str
+    images: tuple
+    image_size_px: tuple
+    labels: tuple
+
+    @property
+    def stereo(self) -> bool:
+        return KINDS[self.kind]
+
+    @property
+    def n_states(self) -> int:
+        return len(self.images)
+
+
+@dataclass(frozen=True)
+class PointTruth:
+    """The truth of points defined at pixels of the left reference image.
+
+    Attributes
+    ----------
+    x_px, y_px : (N,) float, the points in the left reference image
+    valid : (N,) bool, the pixel sees the specimen (the truth of the others is NaN)
+    uv_left_px : (S, N, 2) float, px, where the material point is in the left image of state s minus where it is
+        in the reference image (what 2-D DIC on the left images measures); zero for state 0
+    X_left_mm : (S, N, 3) float or None, mm, its position in state s, left camera frame (stereo only)
+    xy_right_px : (S, N, 2) float or None, px, where it appears in the right image of state s (stereo only)
+    """
+
+    x_px: np.ndarray
+    y_px: np.ndarray
+    valid: np.ndarray
+    uv_left_px: np.ndarray
+    X_left_mm: np.ndarray | None = None
+    xy_right_px: np.ndarray | None = None
+
+    @property
+    def displacement_left_mm(self) -> np.ndarray | None:
+        """(S, N, 3) displacement from the reference state, left camera frame, mm (stereo only)."""
+        return None if self.X_left_mm is None else self.X_left_mm - self.X_left_mm[0]
+
+
+def _image_size(path: Path) -> tuple[int, int]:
+    from measurement.image_io import read_grey
+
+    image = read_grey(path)
+    return int(image.shape[1]), int(image.shape[0])
+
+
+def open_dataset(source: str | Path, store=None) -> Dataset:
+    """The dataset in folder ``source``, or the one the scenario file ``source`` renders (through the store).
+
+    Raises :class:`DatasetError` naming the folder when it is not a complete dataset of a known kind.
+    """
+    source = Path(source)
+    if source.is_file() and source.suffix.lower() in (".toml", ".json") and source.name != "manifest.json":
+        return open_dataset(render_scenario_dataset(source, store))
+    if not source.is_dir():
+        raise DatasetError(f"{source}: no such dataset folder or scenario file")
+    manifest = read_manifest(source)
+    if manifest is None or manifest.get("complete") is not True:
+        raise DatasetError(f"{source}: not a complete dataset (no complete manifest.json); render it first")
+    kind = manifest["kind"]
+    if kind not in KINDS:
+        raise DatasetError(f"{source}: a {kind!r} dataset; another tool can be run on {', '.join(KINDS)}")
+    truth = json.loads((source / "truth.json").read_text())
+    if kind == "dic2d":
+        files = truth["files"]
+        images = ({"left": source / files["reference"]}, {"left": source / files["deformed"]})
+        labels = ("reference", "shift {:g}, {:g} px".format(*truth["shift_xy_px"]))
+    else:
+        images = tuple({side: source / s["files"][side] for side in ("left", "right")} for s in truth["states"])
+        if kind == "rigid-motion":
+            labels = tuple(f"stage {s['stage_mm']:g} mm" for s in truth["states"])
+        else:
+            labels = tuple(f"{s['load_N']:g} N" for s in truth["states"])
+    missing = [str(p) for state in images for p in state.values() if not p.is_file()]
+    if missing:
+        raise DatasetError(f"{source}: images missing: {', '.join(missing[:3])}")
+    return Dataset(source, kind, images, _image_size(images[0]["left"]), labels)
+
+
+def render_scenario_dataset(path: Path, store=None) -> Path:
+    """Render (or find in the store) the images a scenario file describes; returns the dataset folder."""
+    from workbench.studies.cases import experiment_module
+    from workbench.config import load_config, read_mapping
+    from workbench.scenario import Scenario, dataset_parts
+    from workbench.store import DatasetStore
+
+    # a scenario file, or a study-style file whose [scenario] table is the scenario
+    scenario = load_config(Scenario, path, "scenario" if "scenario" in read_mapping(path) else None)
+    store = store if isinstance(store, DatasetStore) else DatasetStore(store)
+    module = experiment_module(scenario.experiment)
+    module.check(scenario)
+    parts = dataset_parts(scenario)
+    if scenario.experiment == "dic2d":
+        key, content = parts["images"]
+        folder, _ = store.ensure("dic2d", key, content, lambda f: module.render_dataset(scenario, f))
+    else:
+        key, content = parts["states"]
+        folder, _ = store.ensure("rigid-motion", key, content, lambda f: module.render_states(scenario, f))
+    return folder
+
+
+def _stereo_truth(dataset: Dataset):
+    if dataset.kind == "rigid-motion":
+        from workbench.experiments.rigid_motion.scenes import load_truth
+        return load_truth(dataset.folder)
+    from workbench.experiments.bending.scenes import load_bending_truth
+    return load_bending_truth(dataset.folder)
+
+
+def point_truth(dataset: Dataset, x_px, y_px) -> PointTruth:
+    """The truth of the points ``(x_px, y_px)`` of the left reference image in every state of ``dataset``."""
+    x = np.asarray(x_px, float).ravel()
+    y = np.asarray(y_px, float).ravel()
+    if x.shape != y.shape:
+        raise ValueError(f"x_px and y_px must have the same length, got {x.size} and {y.size}")
+    w, h = dataset.image_size_px
+    inside = (x >= -0.5) & (x <= w - 0.5) & (y >= -0.5) & (y <= h - 0.5)
+    if dataset.kind == "dic2d":
+        truth = json.loads((dataset.folder / "truth.json").read_text())
+        uv = np.zeros((2, x.size, 2))
+        uv[1] = truth["shift_xy_px"]
+        uv[:, ~inside] = np.nan
+        return PointTruth(x, y, inside, uv)
+    t = _stereo_truth(dataset)
+    _, X_world = t.points_of_interest(np.column_stack([x, y]))          # world = left camera frame
+    valid = inside & np.all(np.isfinite(X_world[0]), axis=1)
+    X_world[:, ~valid] = np.nan
+    S, N = X_world.shape[:2]
+    left = t.project("left", X_world.reshape(-1, 3)).reshape(S, N, 2)
+    right = t.project("right", X_world.reshape(-1, 3)).reshape(S, N, 2)
+    return PointTruth(x, y, valid, left - left[0], X_world, right)
+
+
+def true_rig(dataset: Dataset):
+    """The cameras the dataset was rendered with, as the instrument's :class:`CalibratedRig` (left = world).
+
+    Returns ``(rig, notes)``: ``notes`` lists what the instrument's camera model cannot hold (true-lens terms
+    k3, s1..s4 or a thin lens' defocus are not calibration parameters).
+    """
+    from measurement.calibration.io import CalibratedRig
+    from measurement.camera import INTRINSIC_NAMES, ScheimpflugCamera
+
+    if not dataset.stereo:
+        raise DatasetError(f"{dataset.folder}: a 2-D dataset has no stereo calibration")
+    t = _stereo_truth(dataset)
+    notes = []
+    cams = {}
+    for side in ("left", "right"):
+        spec = t.specs[side]
+        cams[side] = ScheimpflugCamera(**{n: float(getattr(spec, n)) for n in INTRINSIC_NAMES},
+                                       width=int(spec.width), height=int(spec.height))
+        extra = {n: getattr(spec, n, 0.0) for n in ("k3", "s1", "s2", "s3", "s4")}
+        if any(extra.values()):
+            notes.append(f"{side}: true-lens terms {', '.join(f'{k}={v:g}' for k, v in extra.items() if v)} are not in "
+                         "the calibration (an error source of the scenario)")
+        if getattr(spec, "lens", "pinhole") == "thin":
+            notes.append(f"{side}: rendered through a thin lens (defocus); the calibration is its chief-ray camera")
+    R_l, t_l = t.camera_poses["left"]
+    if not (np.allclose(R_l, np.eye(3)) and np.allclose(t_l, 0.0)):
+        raise DatasetError(f"{dataset.folder}: the world frame is not the left camera frame")
+    R, T = t.camera_poses["right"]
+    return CalibratedRig("rmm", cams["left"], cams["right"], np.asarray(R, float), np.asarray(T, float)), notes
+
+
+def dense_truth(dataset: Dataset, step_px: int = 1) -> dict:
+    """Per-pixel truth of the left reference image on every ``step_px``-th pixel, as float32 arrays.
+
+    Returns ``{"x_px": (W',), "y_px": (H',), "valid": (H', W') bool, "uv_left_px": (S, H', W', 2)`` and for
+    stereo ``"X_left_mm": (S, H', W', 3), "xy_right_px": (S, H', W', 2)}``.
+    """
+    if int(step_px) != step_px or step_px < 1:
+        raise ValueError(f"the truth step must be a positive integer number of pixels, got {step_px!r}")
+    w, h = dataset.image_size_px
+    xs, ys = np.arange(0, w, step_px), np.arange(0, h, step_px)
+    S = dataset.n_states
+    out = {"x_px": xs.astype(np.int32), "y_px": ys.astype(np.int32), "valid": np.zeros((ys.size, xs.size), bool),
+           "uv_left_px": np.full((S, ys.size, xs.size, 2), np.nan, np.float32)}
+    if dataset.stereo:
+        out["X_left_mm"] = np.full((S, ys.size, xs.size, 3), np.nan, np.float32)
+        out["xy_right_px"] = np.full((S, ys.size, xs.size, 2), np.nan, np.float32)
+    rows = max(1, 100_000 // xs.size)                   # blocks of rows: float64 work arrays stay ~100 MB
+    for r0 in range(0, ys.size, rows):
+        r1 = min(ys.size, r0 + rows)
+        X, Y = np.meshgrid(xs, ys[r0:r1])
+        pt = point_truth(dataset, X.ravel(), Y.ravel())
+        shape = X.shape
+        out["valid"][r0:r1] = pt.valid.reshape(shape)
+        out["uv_left_px"][:, r0:r1] = pt.uv_left_px.reshape((S,) + shape + (2,))
+        if dataset.stereo:
+            out["X_left_mm"][:, r0:r1] = pt.X_left_mm.reshape((S,) + shape + (3,))
+            out["xy_right_px"][:, r0:r1] = pt.xy_right_px.reshape((S,) + shape + (2,))
+    return out
+
+
+def roi_polygon_px(valid: np.ndarray, x_px: np.ndarray, y_px: np.ndarray, margin_px: int) -> np.ndarray:
+    """A polygon (M, 2) px around the region where the truth is valid, shrunk by ``margin_px``.
+
+    ``valid`` is the (H', W') mask of :func:`workbench.scoring.datasets.dense_truth` on the pixels ``x_px`` x ``y_px``.
+    The largest connected region is kept, eroded so that subsets centred inside it see only the specimen.
+    """
+    import cv2
+
+    step = int(x_px[1] - x_px[0]) if len(x_px) > 1 else 1
+    mask = valid.astype(np.uint8)
+    r = max(1, int(np.ceil(margin_px / step)))
+    mask = cv2.erode(mask, np.ones((2 * r + 1, 2 * r + 1), np.uint8), borderValue=0)
+    contours, _ = cv2.findContours(mask, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
+    if not contours:
+        raise ValueError(f"no region of the reference image sees the specimen {margin_px} px from its edge")
+    contour = max(contours, key=cv2.contourArea)
+    poly = cv2.approxPolyDP(contour, 1.0, True).reshape(-1, 2).astype(float)
+    return np.column_stack([x_px[0] + poly[:, 0] * step, y_px[0] + poly[:, 1] * step])
+
+
+def subset_roi_xyxy_px(dataset: Dataset, subset_px: int) -> tuple[int, int, int, int]:
+    """Inclusive bounds (x0, y0, x1, y1) of subset centres whose subsets of ``subset_px`` see the specimen (and,
+    with the deformed subset's interpolation stencil, stay inside the image): the ROI an engine is given."""
+    w, h = dataset.image_size_px
+    margin = subset_px // 2 + 8
+    if not dataset.stereo:
+        return margin, margin, w - 1 - margin, h - 1 - margin
+    dense = dense_truth(dataset, 4)
+    poly = roi_polygon_px(dense["valid"], dense["x_px"], dense["y_px"], margin + 4)
+    x0, y0 = np.ceil(poly.min(0)).astype(int)
+    x1, y1 = np.floor(poly.max(0)).astype(int)
+    return int(x0), int(y0), int(x1), int(y1)
