@@ -13,6 +13,11 @@ import tempfile
 from pathlib import Path
 from typing import IO, Iterator
 
+#: The process's umask, read once: mkstemp creates 0600 files, but a written file should get the permissions any
+#: other program's file gets (0666 minus the umask), or a replaced file keep its own.
+_UMASK = os.umask(0o022)
+os.umask(_UMASK)
+
 
 @contextlib.contextmanager
 def atomic_writer(path: str | Path, mode: str = "w", *, newline: str | None = None,
@@ -44,6 +49,7 @@ def atomic_writer(path: str | Path, mode: str = "w", *, newline: str | None = No
         with os.fdopen(fd, mode, **({"newline": newline, "encoding": encoding} if text else {})) as handle:
             yield handle
             handle.flush()
+            os.fchmod(handle.fileno(), _file_mode(path))
             os.fsync(handle.fileno())
         os.replace(tmp, path)
     except BaseException as err:
@@ -52,6 +58,14 @@ def atomic_writer(path: str | Path, mode: str = "w", *, newline: str | None = No
         if isinstance(err, OSError):
             raise OSError(f"cannot write {path}: {err.strerror or err}") from None
         raise
+
+
+def _file_mode(path: Path) -> int:
+    """The permissions ``path`` keeps (an existing file) or gets (a new one: 0666 minus the umask)."""
+    try:
+        return os.stat(path).st_mode & 0o7777
+    except OSError:
+        return 0o666 & ~_UMASK
 
 
 def atomic_write_text(path: str | Path, text: str) -> Path:

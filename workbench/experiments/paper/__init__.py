@@ -1,0 +1,2 @@
+"""The whole paper in one command and one report (``run``): calibration, rigid motion, bending, depth of field.
+"""
