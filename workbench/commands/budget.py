@@ -31,4 +31,4 @@ def budget_command(args) -> int:
 
 
 #: The handler of each (command, subcommand) this module adds.
-HANDLERS = {('budget', None): budget_command}
+HANDLERS = {("budget", None): budget_command}

@@ -6,7 +6,8 @@ from pathlib import Path
 
 import numpy as np
 
-from workbench.commands.options import glob_files, output_file, paired_globs, pattern_arg, positive_float_arg, positive_int_arg, read_image_for, size_text, tilt_pair_arg
+from workbench.commands.options import (glob_files, output_file, paired_globs, pattern_arg, positive_float_arg,
+                                        positive_int_arg, read_image_for, size_text, tilt_pair_arg)
 
 
 def add_parser(sub) -> None:
@@ -270,4 +271,4 @@ def calibrate_command(args) -> int:
 
 
 #: The handler of each (command, subcommand) this module adds.
-HANDLERS = {('calibrate', None): calibrate_command}
+HANDLERS = {("calibrate", None): calibrate_command}

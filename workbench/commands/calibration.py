@@ -70,4 +70,4 @@ def calibration_convert_command(args) -> int:
 
 
 #: The handler of each (command, subcommand) this module adds.
-HANDLERS = {('calibration', 'convert'): calibration_convert_command}
+HANDLERS = {("calibration", "convert"): calibration_convert_command}

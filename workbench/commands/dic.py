@@ -6,7 +6,9 @@ from pathlib import Path
 
 import numpy as np
 
-from workbench.commands.options import add_auto_roi_options, auto_roi_settings, non_negative_float_arg, output_file, pair_arg, poi_grid, positive_float_arg, positive_int_arg, read_image_for, roi_arg, size_text, subset_arg, zncc_arg
+from workbench.commands.options import (add_auto_roi_options, auto_roi_settings, non_negative_float_arg, output_file,
+                                        pair_arg, poi_grid, positive_float_arg, positive_int_arg, read_image_for,
+                                        roi_arg, size_text, subset_arg, zncc_arg)
 
 
 def add_parser(sub) -> None:
@@ -102,4 +104,4 @@ def dic_command(args) -> int:
 
 
 #: The handler of each (command, subcommand) this module adds.
-HANDLERS = {('dic', None): dic_command}
+HANDLERS = {("dic", None): dic_command}

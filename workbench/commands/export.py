@@ -40,4 +40,4 @@ def export_command(args) -> int:
 
 
 #: The handler of each (command, subcommand) this module adds.
-HANDLERS = {('export', None): export_command}
+HANDLERS = {("export", None): export_command}

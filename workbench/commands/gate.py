@@ -25,4 +25,4 @@ def gate_command(args) -> int:
 
 
 #: The handler of each (command, subcommand) this module adds.
-HANDLERS = {('gate', None): gate_command}
+HANDLERS = {("gate", None): gate_command}

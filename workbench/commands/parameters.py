@@ -35,4 +35,4 @@ def parameters_command(args) -> int:
 
 
 #: The handler of each (command, subcommand) this module adds.
-HANDLERS = {('parameters', None): parameters_command}
+HANDLERS = {("parameters", None): parameters_command}

@@ -3,7 +3,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from workbench.commands.options import non_negative_float_arg, output_folder, positive_int_arg, scale_arg, seed_arg, views_arg
+from workbench.commands.options import (non_negative_float_arg, output_folder, positive_int_arg, scale_arg, seed_arg,
+                                        views_arg)
 
 
 def add_parser(sub) -> None:
@@ -27,7 +28,7 @@ def add_parser(sub) -> None:
     cb.add_argument("--out", type=Path, required=True)
 
 
-def render_checkerboard(args) -> int:
+def render_checkerboard_command(args) -> int:
     from scenes.noise import SensorNoise
     from workbench.experiments.calibration.views import write_checkerboard_dataset
     from workbench.rigs import get_rig
@@ -43,4 +44,4 @@ def render_checkerboard(args) -> int:
 
 
 #: The handler of each (command, subcommand) this module adds.
-HANDLERS = {('render', 'checkerboard'): render_checkerboard}
+HANDLERS = {("render", "checkerboard"): render_checkerboard_command}

@@ -1,9 +1,14 @@
-"""``workbench reproduce agreement|calibration|rigid-motion|bending|fig6-causes|paper|dic-accuracy|depth-of-field|star``: the paper's checks, each with a report."""
+"""``workbench reproduce WHAT``: the paper's checks, each writing a report.
+
+WHAT: agreement, calibration, rigid-motion, bending, fig6-causes, paper, dic-accuracy, depth-of-field, star.
+"""
 from __future__ import annotations
 
 from pathlib import Path
 
-from workbench.commands.options import angle_deg_arg, integer_arg, non_negative_float_arg, output_folder, positive_float_arg, positive_int_arg, scale_arg, seed_arg, subset_arg, views_arg
+from workbench.commands.options import (angle_deg_arg, integer_arg, non_negative_float_arg, output_folder,
+                                        positive_float_arg, positive_int_arg, scale_arg, seed_arg, subset_arg,
+                                        views_arg)
 from workbench.commands.sweep import run_study
 
 
@@ -257,4 +262,14 @@ FIG6_STUDY = Path(__file__).resolve().parents[2] / "studies" / "fig6_causes.toml
 
 
 #: The handler of each (command, subcommand) this module adds.
-HANDLERS = {('reproduce', 'agreement'): reproduce_agreement_command, ('reproduce', 'depth-of-field'): reproduce_depth_of_field_command, ('reproduce', 'calibration'): reproduce_calibration_command, ('reproduce', 'dic-accuracy'): reproduce_dic_accuracy_command, ('reproduce', 'paper'): reproduce_paper_command, ('reproduce', 'rigid-motion'): reproduce_rigid_motion_command, ('reproduce', 'bending'): reproduce_bending_command, ('reproduce', 'fig6-causes'): fig6_causes_command, ('reproduce', 'star'): reproduce_star_command}
+HANDLERS = {
+    ("reproduce", "agreement"): reproduce_agreement_command,
+    ("reproduce", "depth-of-field"): reproduce_depth_of_field_command,
+    ("reproduce", "calibration"): reproduce_calibration_command,
+    ("reproduce", "dic-accuracy"): reproduce_dic_accuracy_command,
+    ("reproduce", "paper"): reproduce_paper_command,
+    ("reproduce", "rigid-motion"): reproduce_rigid_motion_command,
+    ("reproduce", "bending"): reproduce_bending_command,
+    ("reproduce", "fig6-causes"): fig6_causes_command,
+    ("reproduce", "star"): reproduce_star_command,
+}

@@ -115,4 +115,4 @@ def score_command(args) -> int:
 
 
 #: The handler of each (command, subcommand) this module adds.
-HANDLERS = {('score', None): score_command}
+HANDLERS = {("score", None): score_command}

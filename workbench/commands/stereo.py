@@ -6,7 +6,9 @@ from pathlib import Path
 
 import numpy as np
 
-from workbench.commands.options import add_auto_roi_options, auto_roi_settings, fraction_arg, input_file, output_folder, paired_globs, poi_grid, positive_float_arg, positive_int_arg, read_image_for, resolved, roi_arg, size_text, subset_arg, zncc_arg
+from workbench.commands.options import (add_auto_roi_options, auto_roi_settings, fraction_arg, input_file,
+                                        output_folder, paired_globs, poi_grid, positive_float_arg, positive_int_arg,
+                                        read_image_for, resolved, roi_arg, size_text, subset_arg, zncc_arg)
 
 
 def add_parser(sub) -> None:
@@ -155,4 +157,4 @@ def stereo_command(args) -> int:
 
 
 #: The handler of each (command, subcommand) this module adds.
-HANDLERS = {('stereo', None): stereo_command}
+HANDLERS = {("stereo", None): stereo_command}

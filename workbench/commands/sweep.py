@@ -86,4 +86,4 @@ def sweep_command(args) -> int:
 
 
 #: The handler of each (command, subcommand) this module adds.
-HANDLERS = {('sweep', None): sweep_command}
+HANDLERS = {("sweep", None): sweep_command}
