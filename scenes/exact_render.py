@@ -1,4 +1,4 @@
-"""Deterministic renders of piecewise-constant surfaces: the exact box-filtered pixel, no Monte Carlo.
+"""Deterministic pinhole renders, no Monte Carlo: exact for prints, Gauss-Legendre quadrature for speckle.
 
 A pinhole camera sees a printed target (checkerboard, ChArUco, dot grid: a ``"nearest"``-filtered texture on a
 triangle mesh) as a picture that is constant on polygons. The value Mitsuba's box-filtered film converges to is
@@ -12,10 +12,16 @@ times the fraction of the pixel each covers. This module computes that sum exact
    the projected curve within ``chord_tol_px`` of its chords (distortion bends straight edges);
 3. :func:`scenes.coverage_raster.accumulate_flat` adds radiance x exact covered area per pixel.
 
-What it cannot render exactly is refused with :class:`NotExactError` naming the reason, for the caller to fall
-back to Mitsuba: a thin lens (defocus), a smoothly interpolated texture, surfaces that overlap in the image
-(occlusion: detected exactly, as a pixel covered more than once), a surface reaching behind the camera. The
-agreement with Mitsuba is measured, not assumed (``tests/test_exact_render.py``).
+A smoothly (bilinearly) interpolated texture, a speckle print, is not constant on polygons: its pixel is the
+exact coverage of its triangles times the mean texture over the covered part, the mean by an ``n x n``
+Gauss-Legendre rule per pixel (:mod:`scenes.quadrature_raster`; 6 x 6 by default: ~0.05 grey RMS from converged
+Mitsuba renders, ``benchmarks/render_exact_speckle.py``). A closed mesh (the specimen box) is drawn without its
+back faces, which its front faces hide.
+
+What it cannot render this way is refused with :class:`NotExactError` naming the reason, for the caller to fall
+back to Mitsuba: a thin lens (defocus), surfaces that overlap in the image (occlusion: detected exactly, as a
+pixel covered more than once), a surface reaching behind the camera. The agreement with Mitsuba is measured, not
+assumed (``tests/test_exact_render.py``).
 """
 from __future__ import annotations
 
@@ -25,8 +31,12 @@ from scenes.camera import SensorSpec
 from scenes.coverage_raster import accumulate_flat
 from scenes.surfaces import TexturedSurface
 
-#: Name recorded with every image this module makes.
+#: Name recorded with every image of prints only (exact).
 RENDERER = "exact-polygon"
+#: Name recorded with an image holding a bilinear texture (exact coverage, quadrature of the texture mean).
+RENDERER_QUADRATURE = "polygon-quadrature"
+#: Gauss-Legendre nodes per pixel side for bilinear textures (``tests/test_exact_render.py`` measures the error).
+QUADRATURE_ORDER = 6
 #: Largest distance allowed between a projected edge and its straight pieces, px.
 CHORD_TOL_PX = 1e-4
 #: Coverage above 1 by more than this means two surfaces overlap in the image.
@@ -137,23 +147,63 @@ def _project_outlines(spec: SensorSpec, R: np.ndarray, t: np.ndarray, polys: lis
     return xy, np.concatenate([[0], np.cumsum(per_polygon)]).astype(np.int64)
 
 
+def closed_surface(surfaces: list[TexturedSurface]) -> bool:
+    """True when the surfaces together form a closed, consistently oriented mesh (every edge, matched by its
+    vertices' exact coordinates, used once in each direction): seen from outside, its back faces are hidden
+    behind its front faces, so they can be left out of the image instead of being detected as an overlap."""
+    V = np.concatenate([np.asarray(s.vertices_mm, dtype=float) for s in surfaces])
+    offsets = np.cumsum([0] + [len(s.vertices_mm) for s in surfaces[:-1]])
+    F = np.concatenate([np.asarray(s.faces, dtype=np.int64) + o for s, o in zip(surfaces, offsets)])
+    _, ids = np.unique(V, axis=0, return_inverse=True)
+    F = ids.reshape(-1)[F]
+    directed = np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]])
+    if np.any(directed[:, 0] == directed[:, 1]):
+        return False
+    unique_directed, counts = np.unique(directed, axis=0, return_counts=True)
+    if np.any(counts != 1):
+        return False
+    reverse = set(map(tuple, unique_directed[:, ::-1]))
+    return all(tuple(e) in reverse for e in unique_directed)
+
+
+def _corner_rays(spec: SensorSpec, x0: int, y0: int, w: int, h: int) -> np.ndarray:
+    """(h + 1, w + 1, 3) camera-frame ray directions ``(x_n, y_n, 1)`` through the corners of a crop's pixels."""
+    from scenes.truth import ideal_coordinates
+
+    xs = x0 - 0.5 + np.arange(w + 1)
+    ys = y0 - 0.5 + np.arange(h + 1)
+    X, Y = np.meshgrid(xs, ys)
+    xy = ideal_coordinates(spec, np.column_stack([X.ravel(), Y.ravel()]))
+    if not np.all(np.isfinite(xy)):
+        raise NotExactError("the lens distortion cannot be inverted over the textured surface's pixels")
+    return np.concatenate([xy, np.ones((len(xy), 1))], axis=1).reshape(h + 1, w + 1, 3)
+
+
 def render_view_exact(spec: SensorSpec, R_cam_from_world: np.ndarray, t_cam_from_world_mm: np.ndarray,
                       surfaces: list[TexturedSurface], *, exposure_grey: float = 255.0,
-                      chord_tol_px: float = CHORD_TOL_PX) -> tuple[np.ndarray, dict]:
-    """The exact box-filtered image of piecewise-constant ``surfaces`` through a pinhole camera.
+                      chord_tol_px: float = CHORD_TOL_PX, quadrature_order: int = QUADRATURE_ORDER
+                      ) -> tuple[np.ndarray, dict]:
+    """The box-filtered image of ``surfaces`` through a pinhole camera, without Monte Carlo.
+
+    ``"nearest"`` surfaces (prints) are exact: the sum of their texel polygons' covered areas. ``"bilinear"``
+    surfaces (speckle) are their exact coverage times the mean texture over the covered part, the mean by a
+    Gauss-Legendre rule of ``quadrature_order ** 2`` nodes per pixel (:mod:`scenes.quadrature_raster`). A closed
+    mesh (:func:`closed_surface`) is drawn without its back faces.
 
     Parameters
     ----------
     spec : SensorSpec (``lens == "pinhole"``)
     R_cam_from_world, t_cam_from_world_mm : the camera pose, ``X_cam = R X_world + t``
-    surfaces : TexturedSurface with ``filter == "nearest"``
+    surfaces : TexturedSurface
     exposure_grey : grey levels per unit radiance
+    quadrature_order : Gauss-Legendre nodes per pixel side for bilinear textures
 
     Returns
     -------
     image_grey : (height, width) float32, noise-free grey levels (0 where no surface is seen)
-    info : dict with ``renderer``, ``polygons``, ``crop`` (x0, y0, width, height) and the largest pixel
-        coverage (1 where a surface covers a whole pixel)
+    info : dict with ``renderer`` (:data:`RENDERER` for prints only, :data:`RENDERER_QUADRATURE` with a
+        bilinear texture), ``polygons``, ``crop`` (x0, y0, width, height), the largest pixel coverage (1 where a
+        surface covers a whole pixel), ``quadrature_nodes`` and ``back_faces_culled``
 
     Raises
     ------
@@ -161,32 +211,49 @@ def render_view_exact(spec: SensorSpec, R_cam_from_world: np.ndarray, t_cam_from
         When the view is outside what this renderer makes exactly (module docstring).
     """
     if spec.lens != "pinhole":
-        raise NotExactError(f"the {spec.lens} lens blurs (defocus): only a pinhole image is piecewise constant")
+        raise NotExactError(f"the {spec.lens} lens blurs (defocus): only a pinhole image has no blur")
     if not surfaces:
         raise ValueError("nothing to render: no surfaces given")
     R = np.asarray(R_cam_from_world, dtype=float)
     t = np.asarray(t_cam_from_world_mm, dtype=float).reshape(3)
     centre = -R.T @ t
-    polys, values, front = [], [], []
-    for surface in surfaces:
-        if surface.filter != "nearest":
-            raise NotExactError("a smoothly interpolated (bilinear) texture is not piecewise constant")
+    cull = closed_surface(surfaces)
+    polys, values, front, smooth = [], [], [], []      # smooth: index of the bilinear surface, -1 for prints
+    bilinear = []
+    for index, surface in enumerate(surfaces):
         faces = np.asarray(surface.faces, dtype=int)
         V = np.asarray(surface.vertices_mm, dtype=float)
         normals = np.cross(V[faces[:, 1]] - V[faces[:, 0]], V[faces[:, 2]] - V[faces[:, 0]])
         facing = np.einsum("ij,ij->i", normals, centre - V[faces[:, 0]]) > 0   # the emitting side is seen
+        if surface.filter == "bilinear":
+            kept = faces[facing] if cull else faces
+            bilinear.append((surface, faces[facing], len(polys), len(polys) + int(facing.sum())))
+            polys += list(V[faces[facing]]) + ([] if cull else list(V[faces[~facing]]))
+            values.append(np.zeros(len(kept)))
+            front.append(np.ones(len(kept), dtype=bool) if cull else np.concatenate(
+                [np.ones(int(facing.sum()), dtype=bool), np.zeros(int((~facing).sum()), dtype=bool)]))
+            smooth.append(np.full(len(kept), index))
+            continue
         p, v, owner = _texel_polygons(surface, faces)
-        polys += p
-        values.append(v)
-        front.append(facing[owner])
-    values, front = np.concatenate(values), np.concatenate(front)
+        keep = facing[owner] if cull else np.ones(len(p), dtype=bool)
+        polys += [q for q, k in zip(p, keep) if k]
+        values.append(v[keep])
+        front.append(facing[owner][keep])
+        smooth.append(np.full(int(keep.sum()), -1))
+    values, front, smooth = np.concatenate(values), np.concatenate(front), np.concatenate(smooth)
+    info = {"renderer": RENDERER_QUADRATURE if bilinear else RENDERER, "polygons": len(polys), "crop": [0, 0, 0, 0],
+            "max_coverage": 0.0, "back_faces_culled": bool(cull)}
+    if bilinear:
+        info["quadrature_nodes"] = int(quadrature_order) ** 2
+    image = np.zeros((spec.height, spec.width), dtype=np.float32)
+    if not polys:
+        return image, info
     xy, starts = _project_outlines(spec, R, t, polys, chord_tol_px)
     x0 = int(np.clip(np.floor(xy[:, 0].min()) - 1, 0, spec.width))
     y0 = int(np.clip(np.floor(xy[:, 1].min()) - 1, 0, spec.height))
     x1 = int(np.clip(np.ceil(xy[:, 0].max()) + 2, 0, spec.width))
     y1 = int(np.clip(np.ceil(xy[:, 1].max()) + 2, 0, spec.height))
-    image = np.zeros((spec.height, spec.width), dtype=np.float32)
-    info = {"renderer": RENDERER, "polygons": len(polys), "crop": [x0, y0, x1 - x0, y1 - y0], "max_coverage": 0.0}
+    info["crop"] = [x0, y0, x1 - x0, y1 - y0]
     if x1 <= x0 or y1 <= y0:
         return image, info
     shape = (y1 - y0, x1 - x0)
@@ -195,7 +262,45 @@ def render_view_exact(spec: SensorSpec, R_cam_from_world: np.ndarray, t_cam_from
     if coverage.max() > 1.0 + OVERLAP_TOL:
         raise NotExactError(f"surfaces overlap in the image (a pixel is covered {coverage.max():.4f} times): "
                             "occlusion needs ray tracing")
-    weights = np.where(front, values * float(exposure_grey), 0.0)
+    weights = np.where(front & (smooth < 0), values * float(exposure_grey), 0.0)
     window = accumulate_flat(xy, starts, weights, shape, (x0, y0))
+    if bilinear:
+        window += _bilinear_window(spec, R, t, bilinear, xy, starts, (x0, y0), shape, exposure_grey,
+                                   quadrature_order)
     image[y0:y1, x0:x1] = window.astype(np.float32)
     return image, info
+
+
+def _bilinear_window(spec, R, t, bilinear, xy, starts, origin, shape, exposure_grey, order) -> np.ndarray:
+    """Grey levels of the bilinear surfaces over the crop: exact coverage x quadrature mean (see above)."""
+    from scenes.coverage_raster import accumulate_flat as _coverage
+    from scenes.quadrature_raster import fill_from_neighbours, integrate_triangles
+
+    x0, y0 = origin
+    h, w = shape
+    rays = _corner_rays(spec, x0, y0, w, h)
+    out = np.zeros(shape)
+    for surface, faces, first, stop in bilinear:
+        if stop == first:
+            continue
+        sel = np.zeros(len(starts) - 1)
+        sel[first:stop] = 1.0
+        covered = _coverage(xy, starts, sel, shape, (x0, y0))
+        V = np.asarray(surface.vertices_mm, dtype=float) @ R.T + t
+        tex = np.asarray(surface.texture, dtype=np.float64)
+        rows, cols = tex.shape
+        uv = np.asarray(surface.uv, dtype=float) * np.array([cols, rows]) - 0.5
+        # each triangle's pixel range, from its projected (edge-subdivided) outline
+        boxes = np.empty((stop - first, 4), dtype=np.int64)
+        for k, p in enumerate(range(first, stop)):
+            pts = xy[starts[p]:starts[p + 1]]
+            boxes[k] = [np.floor(pts[:, 0].min() + 0.5) - x0, np.floor(pts[:, 1].min() + 0.5) - y0,
+                        np.floor(pts[:, 0].max() + 0.5) + 1 - x0, np.floor(pts[:, 1].max() + 0.5) + 1 - y0]
+        boxes[:, [0, 2]] = np.clip(boxes[:, [0, 2]], 0, w)
+        boxes[:, [1, 3]] = np.clip(boxes[:, [1, 3]], 0, h)
+        S, Wt = integrate_triangles(V[faces], uv[faces], boxes, rays, tex, order)
+        known = Wt > 0
+        mean = np.where(known, S / np.where(known, Wt, 1.0), 0.0)
+        mean = fill_from_neighbours(mean, known, covered > 0)
+        out += float(exposure_grey) * np.clip(covered, 0.0, 1.0) * mean
+    return out

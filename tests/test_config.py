@@ -182,3 +182,33 @@ def test_a_case_the_experiment_cannot_render_is_refused_before_any_work(tmp_path
                     "[[case]]\nname = 'odd'\nset = { 'scenario.motion.step_mm' = 3.0 }\n")
     with pytest.raises(ConfigError, match=r"max_mm = 10.0 must be a whole number of steps of 3.0 mm"):
         load_study(path)
+
+
+def test_a_case_measured_on_other_renderers_images_is_another_case():
+    """The case hash carries the renderers that are not Mitsuba (the deterministic board and speckle renderers
+    make other images): rigid-motion cases pinned to Mitsuba keep the hash the formula gave before the renderer
+    choices existed (computed here from its two parts by hand), default (auto) cases get a new one, and 2-D
+    cases are untouched."""
+    import hashlib
+
+    from workbench.scenario import case_hash
+
+    def old_hash(scenario, instrument):
+        text = json.dumps({"scenario": content_hash(scenario), "instrument": content_hash(instrument)},
+                          sort_keys=True, separators=(",", ":"))
+        return hashlib.sha256(text.encode()).hexdigest()[:16]
+
+    instrument = Instrument()
+    mitsuba = from_dict(Scenario, {"experiment": "rigid_motion",
+                                   "render": {"board_renderer": "mitsuba", "speckle_renderer": "mitsuba"}})
+    auto = from_dict(Scenario, {"experiment": "rigid_motion"})
+    dic2d = from_dict(Scenario, {"experiment": "dic2d"})
+    # pinned to Mitsuba: the hash the same scenario had before the renderer choices existed (= no such keys)
+    assert case_hash(mitsuba, instrument) == old_hash(auto, instrument)
+    assert case_hash(dic2d, instrument) == old_hash(dic2d, instrument)
+    assert case_hash(auto, instrument) != old_hash(auto, instrument)
+    speckle_only = with_value(mitsuba, "render.speckle_renderer", "auto")
+    assert case_hash(speckle_only, instrument) not in (case_hash(mitsuba, instrument), case_hash(auto, instrument))
+    states = dict(dataset_parts(auto))["states"][1]
+    assert states["speckle_renderer"].startswith("polygon-quadrature")
+    assert dataset_parts(mitsuba)["states"][0] != dataset_parts(auto)["states"][0]

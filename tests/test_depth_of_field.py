@@ -47,3 +47,20 @@ def test_tilted_sensor_has_no_blur_and_lower_dic_noise_and_error(study):
     assert s["converged_static"] == s["points"] and s["converged_moved"] == s["points"]
     assert s["noise_floor_px"]["u"] < c["noise_floor_px"]["u"] and s["noise_floor_px"]["v"] < c["noise_floor_px"]["v"]
     assert 2.0 * s["displacement_error_px"]["rms"] < c["displacement_error_px"]["rms"]
+
+
+def test_a_camera_whose_renders_missed_the_mc_target_is_named_in_the_report_text():
+    """The report's render sentence names the camera whose adaptive renders missed their Monte-Carlo target (and
+    its worst measured noise); a camera that met it is not named."""
+    from workbench.experiments.depth_of_field.run import _render_text
+
+    met = {"mc_rms_grey": 0.29, "target_met": True}
+    missed = {"mc_rms_grey": 1.79, "target_met": False}
+    metrics = {"spp": "adaptive", "mc_target_grey": 0.3,
+               "cameras": {"scheimpflug": {"render_mc": {"ref": met, "def": met}},
+                           "conventional": {"render_mc": {"ref": missed, "def": {**missed, "mc_rms_grey": 1.5}}}}}
+    text = _render_text(metrics)
+    assert "the conventional camera's renders MISSED the target (1.79 grey RMS" in text
+    assert "scheimpflug camera's renders MISSED" not in text
+    metrics["cameras"]["conventional"]["render_mc"] = {"ref": met}
+    assert "MISSED" not in _render_text(metrics)

@@ -61,6 +61,10 @@ class RenderConfig:
     board_renderer: str = _f("auto", "calibration-board views: 'auto' renders the exact box-filtered pixel of the "
                                      "printed polygons where a view allows it (pinhole, no occlusion; else Mitsuba "
                                      "at spp), 'mitsuba' always Monte Carlo at spp", choices=("auto", "mitsuba"))
+    speckle_renderer: str = _f("auto", "speckle states: 'auto' renders without Monte Carlo where a view allows it "
+                                       "(pinhole: exact coverage, Gauss-Legendre quadrature of the speckle; else "
+                                       "Mitsuba at spp), 'mitsuba' always Monte Carlo at spp",
+                               choices=("auto", "mitsuba"))
 
 
 @dataclass(frozen=True)
@@ -201,6 +205,8 @@ class Instrument:
 #: Board renderer choice -> the tag that enters the calibration dataset's hash (a new version of a renderer
 #: that changes its images gets a new tag).
 BOARD_RENDERER_TAGS = {"auto": "exact-polygon/1 else mitsuba", "mitsuba": "mitsuba"}
+#: The same for the speckle states (the quadrature order is part of the renderer's version).
+SPECKLE_RENDERER_TAGS = {"auto": "polygon-quadrature/1 order 6 else mitsuba", "mitsuba": "mitsuba"}
 
 #: Which sections of a scenario change the images of each dataset it renders.
 DATASET_SECTIONS = {
@@ -212,7 +218,8 @@ DATASET_SECTIONS = {
 
 def dataset_parts(scenario: Scenario) -> dict[str, tuple[str, dict]]:
     """The datasets a scenario renders: ``{part: (hash, the content it is the hash of)}``."""
-    data = to_dict(scenario, skip_defaults=True)     # defaults left out: a new parameter keeps old hashes
+    # defaults left out: a new parameter keeps old hashes; the renderers enter as their tags (below) only
+    data = to_dict(_renderers_as_default(scenario), skip_defaults=True)
     out = {}
     for part, sections in DATASET_SECTIONS[scenario.experiment].items():
         content = {"experiment": scenario.experiment, "part": part, "schema": SCHEMA_VERSION,
@@ -220,10 +227,37 @@ def dataset_parts(scenario: Scenario) -> dict[str, tuple[str, dict]]:
         if part == "calibration":
             # which renderer made the board images (the exact renderer's views differ from Monte-Carlo ones)
             content["board_renderer"] = BOARD_RENDERER_TAGS[scenario.render.board_renderer]
+        if part == "states":
+            content["speckle_renderer"] = SPECKLE_RENDERER_TAGS[scenario.render.speckle_renderer]
         out[part] = (hash_of(content), content)
     return out
 
 
+def _renderers_as_default(scenario: Scenario) -> Scenario:
+    """The scenario with its renderer choices at their defaults: hashes carry the renderers as tags instead, so a
+    scenario pinned to Mitsuba hashes as it did before the choices existed."""
+    from dataclasses import replace
+
+    defaults = RenderConfig()
+    return replace(scenario, render=replace(scenario.render, board_renderer=defaults.board_renderer,
+                                            speckle_renderer=defaults.speckle_renderer))
+
+
+def renderer_tags(scenario: Scenario) -> dict:
+    """The renderers other than Mitsuba a scenario's datasets are made with (empty for Mitsuba-only or 2-D
+    scenarios): a case measured on other images is another case."""
+    if scenario.experiment != "rigid_motion":
+        return {}
+    tags = {"board_renderer": BOARD_RENDERER_TAGS[scenario.render.board_renderer],
+            "speckle_renderer": SPECKLE_RENDERER_TAGS[scenario.render.speckle_renderer]}
+    return {k: v for k, v in tags.items() if v != "mitsuba"}
+
+
 def case_hash(scenario: Scenario, instrument: Instrument) -> str:
-    """Hash of one measured case: the scenario and the instrument together."""
-    return hash_of({"scenario": content_hash(scenario), "instrument": content_hash(instrument)})
+    """Hash of one measured case: the scenario, the instrument and the renderers that made its images (a case
+    rendered with Mitsuba only keeps the hash it had before the deterministic renderers existed)."""
+    content = {"scenario": content_hash(_renderers_as_default(scenario)), "instrument": content_hash(instrument)}
+    tags = renderer_tags(scenario)
+    if tags:
+        content["renderers"] = tags
+    return hash_of(content)

@@ -50,6 +50,10 @@ def add_parser(sub) -> None:
                     help="pinhole (default) or thin lens at f/8 with the rig's tilted sensors (its focus plane misses the face)")
     rm.add_argument("--seed", type=seed_arg, default=0)
     rm.add_argument("--spp", type=positive_int_arg, default=64)
+    rm.add_argument("--renderer", choices=("auto", "mitsuba"), default="auto",
+                    help="speckle states: auto renders without Monte Carlo where a view allows it (pinhole: exact "
+                         "coverage, Gauss-Legendre quadrature of the speckle), Mitsuba elsewhere; mitsuba: always "
+                         "Monte Carlo at --spp")
     rm.add_argument("--subset", type=subset_arg, default=65)
     rm.add_argument("--step", type=positive_int_arg, default=5)
     rm.add_argument("--store", type=Path, default=None,
@@ -65,6 +69,10 @@ def add_parser(sub) -> None:
                     help="'rendered' (reproduced from rendered boards, default), 'true' (the true rig) or a file")
     bd.add_argument("--seed", type=seed_arg, default=0)
     bd.add_argument("--spp", type=positive_int_arg, default=64)
+    bd.add_argument("--renderer", choices=("auto", "mitsuba"), default="auto",
+                    help="speckle states: auto renders without Monte Carlo where a view allows it (pinhole: exact "
+                         "coverage, Gauss-Legendre quadrature of the speckle), Mitsuba elsewhere; mitsuba: always "
+                         "Monte Carlo at --spp")
     bd.add_argument("--noise-grey", type=non_negative_float_arg, default=1.0)
     bd.add_argument("--subset", type=subset_arg, default=65)
     bd.add_argument("--step", type=positive_int_arg, default=5)
@@ -123,7 +131,8 @@ def reproduce_rigid_motion_command(args) -> int:
     _rig_option(args.calib)
     output_folder(args.out)
     m = reproduce_rigid_motion(args.out, scale=args.scale, calib=args.calib, lens=args.lens, seed=args.seed,
-                               spp=args.spp, subset_size=args.subset, step=args.step, store=args.store)
+                               spp=args.spp, subset_size=args.subset, step=args.step, store=args.store,
+                               renderer=args.renderer)
     e = m["reference_3d_error_um"]
     print(f"{m['calibration']}: reference 3D error {e['aligned_rms']:.3f} um aligned ({e['unaligned_rms']:.1f} um "
           f"unaligned), {m['points']} points")
@@ -147,7 +156,7 @@ def reproduce_bending_command(args) -> int:
     output_folder(args.out)
     m = reproduce_bending(args.out, scale=args.scale, rig_name=args.rig, lens=args.lens, calib=args.calib,
                           seed=args.seed, spp=args.spp, noise_grey=args.noise_grey, subset_size=args.subset,
-                          step=args.step, window=args.window or None, store=args.store)
+                          step=args.step, window=args.window or None, store=args.store, renderer=args.renderer)
     print(f"{m['calibration']}: {m['points']} points, VSG {m['vsg_px']} px")
     for r in m["states"]:
         if "error" in r:

@@ -30,6 +30,7 @@ from measurement.strain import surface_strain, virtual_strain_gauge_px
 from workbench.experiments.bending.scenes import BENDING_LOADS_N, load_bending_truth, render_bending
 from workbench.experiments.calibration.run import render_content, mc_summary
 from workbench.experiments.rigid_motion.run import face_roi, finite_or_none, rig_for_name
+from workbench.experiments.rigid_motion.scenes import speckle_render_content
 from workbench.store import dataset_record, stored_render
 from workbench.points_with_truth import Alignment, write_alignment, write_points_readme, write_points_with_truth
 from workbench.rigs import scheimpflug_design_report
@@ -82,7 +83,8 @@ def reproduce_bending(out_dir: str | Path, *, scale: float = 1.0, rig_name: str 
                       calib: str = "rendered", seed: int = 0, spp: int = 64, noise_grey: float = 1.0,
                       subset_size: int = 65, step: int = 5, window: int | None = DEFAULT_STRAIN_WINDOW,
                       loads_N=BENDING_LOADS_N, progress: bool = True, store=None,
-                      mc_target_grey: float | None = None, calibration_views: tuple[int, int] = (30, 20)) -> dict:
+                      mc_target_grey: float | None = None, calibration_views: tuple[int, int] = (30, 20),
+                      renderer: str = "auto") -> dict:
     """Render (or reuse) the load states, measure them, compute strain, score against truth, write the report.
 
     The load states are rendered into the dataset store (``store``, default
@@ -93,11 +95,12 @@ def reproduce_bending(out_dir: str | Path, *, scale: float = 1.0, rig_name: str 
     rig, rig_text = rig_for_name(calib, rig_name, scale, out_dir, seed, store, mc_target_grey,  # bad file: first
                                   calibration_views)
     content = {"experiment": "bending", "rig": rig_name, "scale": float(scale), "lens": lens, "seed": seed,
-               **render_content(spp, mc_target_grey), "read_noise_grey": float(noise_grey),
-               "loads_N": [float(v) for v in loads], "fe": "ThreePointBending defaults/1"}
+               **render_content(spp, mc_target_grey), **speckle_render_content(renderer, lens),
+               "read_noise_grey": float(noise_grey), "loads_N": [float(v) for v in loads],
+               "fe": "ThreePointBending defaults/1"}
     images, _ = stored_render("bending", content, lambda folder: render_bending(
         rig_name, folder, scale=scale, lens=lens, spp=spp, seed=seed, noise_grey=noise_grey, loads_N=loads,
-        progress=progress, overwrite=True, mc_target_grey=mc_target_grey), store)
+        progress=progress, overwrite=True, mc_target_grey=mc_target_grey, renderer=renderer), store)
     truth = load_bending_truth(images)
     settings = DICSettings(subset_size=subset_size, step=step, order=2)
     roi = _overlap_roi(truth, face_roi(_FacePoses(truth), subset_size // 2), subset_size // 2, step)
@@ -220,6 +223,7 @@ def reproduce_bending(out_dir: str | Path, *, scale: float = 1.0, rig_name: str 
     metrics = {"rig": rig_name, "calibration": rig_text, "images": str(images),
                "images_dataset": dataset_record("bending", content, images), "lens": lens, "scale": scale,
                **render_content(spp, mc_target_grey), "render_mc": mc_summary(truth.info["render"].get("mc", [])),
+               "speckle_renderers": truth.info["render"].get("renderers", {}),
                "noise_grey": noise_grey, "subset_px": subset_size, "step_px": step,
                "strain_window": window if window is not None else "per-triangle (Cosserat point elements)",
                "vsg_px": vsg, "roi_px": list(roi), "points": int(shape.x.size),

@@ -179,7 +179,8 @@ def bending_truth(rig: StereoRig, *, lens: str = "thin", f_number: float | None 
 def render_bending(rig: StereoRig | str, out_dir, scale: float = 1.0, lens: str = "thin", spp: int = 64,
                    seed: int = 0, noise_grey: float = 1.0, loads_N=BENDING_LOADS_N, *, f_number: float | None = None,
                    specimen: BendingSpecimen | None = None, beam: ThreePointBending | None = None,
-                   progress: bool = True, overwrite: bool = False, mc_target_grey: float | None = None) -> BendingTruth:
+                   progress: bool = True, overwrite: bool = False, mc_target_grey: float | None = None,
+                   renderer: str = "auto") -> BendingTruth:
     """Render every load state in both cameras: ``left_KK.png``, ``right_KK.png``, ``truth.json`` and
     ``manifest.json`` (truth and manifest last: a folder with a manifest is complete).
 
@@ -188,6 +189,8 @@ def render_bending(rig: StereoRig | str, out_dir, scale: float = 1.0, lens: str 
     rig : StereoRig or a rig name ("scheimpflug", "paper"), built at ``scale``
     lens : "thin" (the rig's lenses; for a rig without lenses one focused on the face centre) or "pinhole"
     spp : samples per pixel (unused with ``mc_target_grey``: adaptive renders at that Monte-Carlo noise, grey);
+    renderer : "auto" (the deterministic renderer where a view allows it: a pinhole lens) or "mitsuba"
+        (:func:`workbench.experiments.rigid_motion.scenes.render_stereo_states`)
     seed : seeds speckle, sampler and noise; noise_grey : read noise (8-bit grey)
     loads_N : state 0 is the reference (default: 20 N, then 200 -> 2000 N by 200 N)
     overwrite : replace an earlier dataset in ``out_dir`` (deletes exactly the files its manifest lists); without
@@ -204,12 +207,13 @@ def render_bending(rig: StereoRig | str, out_dir, scale: float = 1.0, lens: str 
     prepare_folder(out_dir, "bending", planned + ["truth.json"], overwrite=overwrite)
     texture = truth.specimen.texture()
     mc_log: list = []
+    render_log: list = []
     files = render_stereo_states(
         truth, lambda k: truth.specimen.surfaces(*truth.pose, texture=texture, displacement_mm=truth.field(k)),
         len(truth.loads_N), out_dir, noise, spp=spp, seed=seed, desc=f"rendering bending ({lens})", progress=progress,
-        mc_target_grey=mc_target_grey, mc_log=mc_log)
+        mc_target_grey=mc_target_grey, mc_log=mc_log, renderer=renderer, render_log=render_log)
     truth.files = files
-    truth.info.update(render_info(rig, rig_scale, spp, seed, noise_grey, mc_target_grey, mc_log))
+    truth.info.update(render_info(rig, rig_scale, spp, seed, noise_grey, mc_target_grey, mc_log, render_log))
     atomic_write_text(out_dir / "truth.json", json.dumps(_truth_to_json(truth), indent=1))   # after every image
     complete_folder(out_dir, "bending", [n for names in files for n in names.values()] + ["truth.json"],
                     {"rig": rig.name, "scale": rig_scale, "lens": lens, **truth.info["render"],

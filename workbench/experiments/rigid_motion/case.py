@@ -120,7 +120,7 @@ def render_states(scenario: Scenario, folder: Path) -> None:
                         f_number=scenario.rig.f_number, progress=False, overwrite=True, stage_errors=stage,
                         drift=drift, illumination=light, lens_terms=lens_terms(scenario),
                         electrons_per_grey=r.electrons_per_grey, specimen=specimen,
-                        focus_offset_mm=scenario.rig.focus_offset_mm)
+                        focus_offset_mm=scenario.rig.focus_offset_mm, renderer=r.speckle_renderer)
 
 
 #: Painted speckle size when the scenario leaves it open, px at the working distance (as ``reproduce rigid-motion``).

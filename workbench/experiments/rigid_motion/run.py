@@ -26,7 +26,7 @@ from measurement.stereo_dic import StereoMatchError, measure_state, reference_sh
 from measurement.stereo_io import write_state_vtk
 from scenes.motion import stage_states_mm
 from workbench.experiments.calibration.run import render_content, mc_summary
-from workbench.experiments.rigid_motion.scenes import load_truth, render_rigid_motion
+from workbench.experiments.rigid_motion.scenes import load_truth, render_rigid_motion, speckle_render_content
 from workbench.manifest import save_figure
 from workbench.store import dataset_record, stored_render
 from workbench.points_with_truth import Alignment, write_alignment, write_points_readme, write_points_with_truth
@@ -179,11 +179,14 @@ def measure_rigid_motion(truth, images: Path, rig: CalibratedRig, *, subset_size
 
 def reproduce_rigid_motion(out_dir: str | Path, *, scale: float = 1.0, calib: str = "rendered", lens: str = "pinhole",
                            seed: int = 0, spp: int = 64, subset_size: int = 65, step: int = 5, states=None,
-                           progress: bool = True, store=None, mc_target_grey: float | None = None) -> dict:
+                           progress: bool = True, store=None, mc_target_grey: float | None = None,
+                           renderer: str = "auto") -> dict:
     """Render (or reuse) the states, measure them, score against truth, write the report. Returns the metrics.
 
     ``mc_target_grey``: adaptive renders (:mod:`scenes.adaptive`) at that Monte-Carlo noise instead of ``spp``
-    (the rendered calibration too).
+    (the rendered calibration too) where Mitsuba renders. ``renderer``: ``"auto"`` renders the speckle states
+    without Monte Carlo where a view allows it (a pinhole: :func:`scenes.exact_render.render_view_exact`),
+    ``"mitsuba"`` always with Mitsuba; ``metrics["speckle_renderers"]`` counts the images each made.
 
     The states are rendered into the dataset store (``store``, default :func:`workbench.store.default_store_dir`)
     under the hash of everything that makes them: an identical run reuses them (``metrics["images"]``).
@@ -192,10 +195,11 @@ def reproduce_rigid_motion(out_dir: str | Path, *, scale: float = 1.0, calib: st
     rig, rig_text = _rig_for(calib, scale, out_dir, seed, store, mc_target_grey)  # a bad file: refused first
     wanted = stage_states_mm() if states is None else np.asarray(states, dtype=float)
     content = {"experiment": "rigid-motion", "rig": "paper", "scale": float(scale), "lens": lens, "seed": seed,
-               **render_content(spp, mc_target_grey), "read_noise_grey": 1.0, "states_mm": [float(v) for v in wanted]}
+               **render_content(spp, mc_target_grey), **speckle_render_content(renderer, lens),
+               "read_noise_grey": 1.0, "states_mm": [float(v) for v in wanted]}
     images, _ = stored_render("rigid-motion", content, lambda folder: render_rigid_motion(
         "paper", folder, scale=scale, lens=lens, spp=spp, seed=seed, states=wanted, progress=progress,
-        overwrite=True, mc_target_grey=mc_target_grey), store)
+        overwrite=True, mc_target_grey=mc_target_grey, renderer=renderer), store)
     truth = load_truth(images)
     m = measure_rigid_motion(truth, images, rig, subset_size=subset_size, step=step, points_dir=out_dir / "points",
                              progress=progress)
@@ -213,6 +217,7 @@ def reproduce_rigid_motion(out_dir: str | Path, *, scale: float = 1.0, calib: st
     metrics = {"calibration": rig_text, "images": str(images),
                "images_dataset": dataset_record("rigid-motion", content, images), "lens": lens, "scale": scale,
                **render_content(spp, mc_target_grey), "render_mc": mc_summary(truth.info["render"].get("mc", [])),
+               "speckle_renderers": truth.info["render"].get("renderers", {}),
                "subset_px": subset_size, "step_px": step,
                "roi_px": list(roi), "points": int(shape.x.size), "reference_points_triangulated": int(ok0.sum()),
                "reference_3d_error_um": {"unaligned_rms": float(1e3 * np.sqrt(np.mean(unaligned ** 2))),

@@ -252,7 +252,7 @@ def render_rigid_motion(rig: StereoRig | str, out_dir, scale: float = 1.0, lens:
                         stage_errors: StageErrors | None = None, drift: CameraDrift | None = None,
                         illumination: IlluminationChange | None = None, lens_terms: dict | None = None,
                         electrons_per_grey: float | None = None, focus_offset_mm: float = 0.0,
-                        mc_target_grey: float | None = None) -> RigidMotionTruth:
+                        mc_target_grey: float | None = None, renderer: str = "auto") -> RigidMotionTruth:
     """Render the rigid-motion test in both cameras and write ``left_KK.png``, ``right_KK.png``, ``truth.json``
     and ``manifest.json`` (truth and manifest last: a folder with a manifest is complete).
 
@@ -262,7 +262,10 @@ def render_rigid_motion(rig: StereoRig | str, out_dir, scale: float = 1.0, lens:
         A name is built at ``scale``; a StereoRig already has its scale (then ``scale`` must stay 1).
     out_dir : directory to write into (created)
     lens : "thin" (Scheimpflug-tilted sensor, focused on the face centre, ``f_number``) or "pinhole"
-    spp : samples per pixel (unused with ``mc_target_grey``: adaptive renders at that Monte-Carlo noise, grey)
+    spp : samples per pixel of Mitsuba renders (unused with ``mc_target_grey``: adaptive renders at that
+        Monte-Carlo noise, grey)
+    renderer : "auto" (the deterministic renderer where the view allows it: a pinhole) or "mitsuba"
+        (:func:`render_stereo_states`)
     seed : seeds the speckle (default specimen), the sampler and the noise; same seed -> same files
     noise_grey : read-noise sigma in grey levels (8-bit images)
     states : stage positions in mm (default 0 -> 10 -> 0 mm in 1 mm steps, 21 states)
@@ -292,12 +295,14 @@ def render_rigid_motion(rig: StereoRig | str, out_dir, scale: float = 1.0, lens:
     prepare_folder(out_dir, "rigid-motion", planned + ["truth.json"], overwrite=overwrite)
     texture = truth.specimen.texture()
     mc_log: list = []
+    render_log: list = []
     files = render_stereo_states(truth, lambda k: truth.specimen.surfaces(*truth.poses[k], texture=texture),
                                  len(truth.poses), out_dir, noise, spp=spp, seed=seed,
                                  desc=f"rendering rigid motion ({lens})", progress=progress, drift=drift,
-                                 illumination=illumination, mc_target_grey=mc_target_grey, mc_log=mc_log)
+                                 illumination=illumination, mc_target_grey=mc_target_grey, mc_log=mc_log,
+                                 renderer=renderer, render_log=render_log)
     truth.files = files
-    truth.info.update(render_info(rig, rig_scale, spp, seed, noise_grey, mc_target_grey, mc_log))
+    truth.info.update(render_info(rig, rig_scale, spp, seed, noise_grey, mc_target_grey, mc_log, render_log))
     if electrons_per_grey is not None:
         truth.info["render"]["electrons_per_grey"] = float(electrons_per_grey)
     if drift is not None and not drift.is_zero:
@@ -323,41 +328,78 @@ def resolve_rig(rig: StereoRig | str, scale: float) -> tuple[StereoRig, float | 
     return rig, None
 
 
+#: Renderers of speckle states: "auto" (the deterministic pinhole renderer, :mod:`scenes.exact_render`, where a
+#: view allows it; Mitsuba otherwise), "mitsuba" (Monte Carlo: fixed spp or adaptive).
+SPECKLE_RENDERERS = ("auto", "mitsuba")
+
+
+def speckle_render_content(renderer: str, lens: str) -> dict:
+    """How the speckle renderer enters a stored dataset's content hash: nothing where every image is Mitsuba's
+    (``"mitsuba"``, or a thin lens, which ``"auto"`` leaves to Mitsuba), so those datasets keep their hashes."""
+    from workbench.scenario import SPECKLE_RENDERER_TAGS
+
+    if renderer not in SPECKLE_RENDERERS:
+        raise ValueError(f"speckle renderer {renderer!r}: choose one of {', '.join(SPECKLE_RENDERERS)}")
+    return {} if renderer == "mitsuba" or lens != "pinhole" else {"speckle_renderer": SPECKLE_RENDERER_TAGS[renderer]}
+
+
 def render_stereo_states(truth, surfaces_of_state, n_states: int, out_dir: Path, noise: SensorNoise, *, spp: int,
                          seed: int, desc: str, progress: bool = True, drift: CameraDrift | None = None,
                          illumination: IlluminationChange | None = None, mc_target_grey: float | None = None,
-                         mc_log: list | None = None) -> list[dict[str, str]]:
+                         mc_log: list | None = None, renderer: str = "auto",
+                         render_log: list | None = None) -> list[dict[str, str]]:
     """Render every state in both cameras as 8-bit ``left_KK.png`` / ``right_KK.png`` (atomic writes).
 
     ``truth`` provides ``specs`` and ``camera_poses``; ``surfaces_of_state(k)`` the scene of state k. One seed per
     image (``seed * 100003 + 2 k + camera``): Monte-Carlo noise is pixel-locked, so states must not share it.
     ``drift``: the drifting camera renders state k from :func:`scenes.drift.drifted_pose`; ``illumination``:
     the scene radiance of state k changes (:meth:`scenes.illumination.IlluminationChange.apply`) before the
-    sensor noise. ``mc_target_grey``: both cameras of a state from one scene with :mod:`scenes.adaptive` at that
-    Monte-Carlo noise (``spp`` unused); each image's measured noise and sample counts are appended to ``mc_log``.
-    Returns the file names per state.
+    sensor noise. ``renderer`` (:data:`SPECKLE_RENDERERS`): ``"auto"`` renders both cameras of a state with
+    :func:`scenes.exact_render.render_view_exact` (exact coverage, Gauss-Legendre quadrature of the speckle: no
+    Monte-Carlo noise) where it can (a pinhole, no occlusion) and with Mitsuba otherwise (a thin lens: defocus).
+    Mitsuba renders at ``spp``, or, with ``mc_target_grey``, both cameras of a state from one scene with
+    :mod:`scenes.adaptive` at that Monte-Carlo noise; each such image's measured noise and sample counts are
+    appended to ``mc_log``. ``render_log`` gets one entry per image: which renderer made it, and why Mitsuba did
+    where ``"auto"`` fell back. Returns the file names per state.
     """
+    from scenes.exact_render import NotExactError, render_view_exact
+
+    if renderer not in SPECKLE_RENDERERS:
+        raise ValueError(f"speckle renderer {renderer!r}: choose one of {', '.join(SPECKLE_RENDERERS)}")
     digits = max(2, len(str(n_states - 1)))
     files = []
     for k in tqdm(range(n_states), desc=desc, disable=not progress):
         surfaces = surfaces_of_state(k)
         names = {}
         poses = {side: drifted_pose(*truth.camera_poses[side], drift, k, camera=side) for side in SIDES}
+        exact, fallback = None, None
+        if renderer == "auto":
+            try:
+                exact = [render_view_exact(truth.specs[side], *poses[side], surfaces, exposure_grey=EXPOSURE_GREY[8])
+                         for side in SIDES]
+            except NotExactError as err:
+                fallback = str(err)
         adaptive = None
-        if mc_target_grey is not None:
+        if exact is None and mc_target_grey is not None:
             from scenes.adaptive import AdaptiveSettings, render_views_adaptive
             adaptive = render_views_adaptive([(truth.specs[side], poses[side]) for side in SIDES], surfaces,
                                              seed=seed * 100003 + 2 * k, exposure_grey=EXPOSURE_GREY[8],
                                              settings=AdaptiveSettings(target_mc_grey=mc_target_grey))
         for c, side in enumerate(SIDES):
             image_seed = seed * 100003 + 2 * k + c
-            if adaptive is None:
+            if exact is not None:
+                rendered, made_by = exact[c][0], exact[c][1]["renderer"]
+            elif adaptive is None:
                 rendered = render_view(truth.specs[side], *poses[side], surfaces, spp=spp, seed=image_seed,
                                        exposure_grey=EXPOSURE_GREY[8]).image_grey
+                made_by = "mitsuba"
             else:
-                rendered = adaptive[c].image_grey
+                rendered, made_by = adaptive[c].image_grey, "mitsuba-adaptive"
                 if mc_log is not None:
                     mc_log.append({"state": k, "camera": side, **adaptive[c].mc})
+            if render_log is not None:
+                render_log.append({"state": k, "camera": side, "renderer": made_by,
+                                   **({"fallback": fallback} if fallback else {})})
             image = rendered if illumination is None else illumination.apply(rendered, k)
             names[side] = f"{side}_{k:0{digits}d}.png"
             atomic_write_image(out_dir / names[side], to_image_dtype(noise.apply(image, seed=image_seed), 8))
@@ -366,9 +408,14 @@ def render_stereo_states(truth, surfaces_of_state, n_states: int, out_dir: Path,
 
 
 def render_info(rig: StereoRig, rig_scale, spp: int, seed: int, noise_grey: float,
-                mc_target_grey: float | None = None, mc_log: list | None = None) -> dict:
-    """The ``render`` and ``rig`` entries of a rendered sequence's truth.json."""
+                mc_target_grey: float | None = None, mc_log: list | None = None,
+                render_log: list | None = None) -> dict:
+    """The ``render`` and ``rig`` entries of a rendered sequence's truth.json (``renderers``: images per renderer,
+    ``images``: which renderer made each image and why Mitsuba did where the deterministic one could not)."""
     adaptive = {} if mc_target_grey is None else {"mc_target_grey": float(mc_target_grey), "mc": mc_log or []}
+    if render_log:
+        names = [r["renderer"] for r in render_log]
+        adaptive.update(renderers={n: names.count(n) for n in sorted(set(names))}, images=render_log)
     return {"render": {"spp": "adaptive" if mc_target_grey is not None else int(spp), **adaptive, "seed": int(seed),
                        "bit_depth": 8, "read_noise_grey": float(noise_grey), "exposure_grey": EXPOSURE_GREY[8]},
             "rig": {"name": rig.name, "scale": rig_scale,
