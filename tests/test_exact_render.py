@@ -26,7 +26,6 @@ import pytest
 from scenes.coverage_raster import accumulate_polygons
 from scenes.exact_render import NotExactError, render_view_exact
 from scenes.render import render_view
-from scenes.surfaces import TexturedSurface
 from scenes.targets import CharucoBoard, Checkerboard, DotGrid
 from workbench.experiments.calibration.views import (board_outline_mm, render_board_views, sensor_spec_for,
                                                       write_checkerboard_dataset)
