@@ -103,14 +103,31 @@ def append_idics(out_dir: str | Path, stage: str, metrics: dict) -> None:
     atomic_write_text(path, text.rstrip("\n") + "\n\n" + "\n".join(render_lines(metrics) + idics_for(stage, metrics)))
 
 
+#: How each speckle renderer is named in reports.
+SPECKLE_RENDERER_TEXT = {
+    "polygon-quadrature": "without Monte Carlo (exact coverage of the specimen's faces, Gauss-Legendre quadrature of "
+                          "the speckle, 6 x 6 nodes per pixel; scenes.exact_render)",
+    "mitsuba-adaptive": "by Mitsuba, adaptive (scenes.adaptive)",
+    "mitsuba": "by Mitsuba at a fixed spp",
+}
+
+
 def render_lines(m: dict) -> list[str]:
+    """The sentence on how an experiment's images were rendered: the deterministic renderer's share, and the
+    adaptive Monte-Carlo renders' measured noise and cost (nothing for metrics without either)."""
+    lines = []
+    made = m.get("speckle_renderers") or {}
+    if made.get("polygon-quadrature"):
+        lines.append(f"Renders: {made['polygon-quadrature']} images {SPECKLE_RENDERER_TEXT['polygon-quadrature']}"
+                     + (f"; {sum(v for k, v in made.items() if k != 'polygon-quadrature')} by Mitsuba where a view "
+                        "needed it." if len(made) > 1 else "."))
     r = m.get("render_mc")
-    if not r:
-        return []
-    return [f"Renders: {r['images']} adaptive images, Monte-Carlo noise measured {r['mc_rms_grey']['median']:.3f} grey "
-            f"RMS median ({r['mc_rms_grey']['max']:.3f} max; target {r['target_grey']:g}), "
-            f"{r['sensor_spp']['median']:.1f} samples per sensor pixel median, crop {100 * r['crop_fraction']:.0f} % "
-            f"of the sensor, {r['seconds_per_image']:.1f} s per image.", ""]
+    if r:
+        lines.append(f"Renders: {r['images']} adaptive images, Monte-Carlo noise measured "
+                     f"{r['mc_rms_grey']['median']:.3f} grey RMS median ({r['mc_rms_grey']['max']:.3f} max; target "
+                     f"{r['target_grey']:g}), {r['sensor_spp']['median']:.1f} samples per sensor pixel median, crop "
+                     f"{100 * r['crop_fraction']:.0f} % of the sensor, {r['seconds_per_image']:.1f} s per image.")
+    return [line for text in lines for line in (text, "")]
 
 
-__all__ = ["IDICS_HEADING", "append_idics", "idics_for", "render_lines"]
+__all__ = ["IDICS_HEADING", "SPECKLE_RENDERER_TEXT", "append_idics", "idics_for", "render_lines"]

@@ -201,6 +201,19 @@ def _board_render_text(out_dir: Path) -> str:
     return "; ".join(f"{names.get(k, k)}: {v} images" for k, v in sorted(counts.items()))
 
 
+def _speckle_render_text(out_dir: Path, settings: PaperSettings) -> str:
+    """Which renderer made the speckle states of the run (from the rigid-motion and bending metrics)."""
+    counts: dict[str, int] = {}
+    for stage in ("rigid_motion", "bending"):
+        for name, n in ((_metrics(out_dir, stage) or {}).get("speckle_renderers") or {}).items():
+            counts[name] = counts.get(name, 0) + int(n)
+    adaptive = (f"adaptive, Monte-Carlo noise target {settings.mc_target_grey:g} grey RMS (scenes.adaptive)")
+    if not counts:
+        return adaptive
+    names = {**experiment_idics.SPECKLE_RENDERER_TEXT, "mitsuba-adaptive": f"Mitsuba {adaptive}"}
+    return "; ".join(f"{names.get(k, k)}: {v} images" for k, v in sorted(counts.items(), reverse=True))
+
+
 # ------------------------------------------------------------------------------------------------------------
 # Goals
 def _goal(experiment, figure, paper, goal, ours, met, unit="") -> dict:
@@ -352,8 +365,8 @@ def write_paper_report(out_dir: Path, settings: PaperSettings, timings: dict, to
     lines += ["", "## Run", "", "| item | value |", "|---|---|",
               f"| mode | {mode} |", f"| image scale | {settings.scale:g} (depth of field {settings.dof_scale:g}) |",
               f"| seed | {settings.seed} |",
-              f"| rendering | speckled specimens: adaptive, Monte-Carlo noise target {settings.mc_target_grey:g} grey RMS "
-              f"(scenes.adaptive); calibration boards: {_board_render_text(out_dir)} |",
+              f"| rendering | speckled specimens: {_speckle_render_text(out_dir, settings)}; calibration boards: "
+              f"{_board_render_text(out_dir)} |",
               f"| calibration views | {settings.calibration_views} + {settings.validation_views} validation |",
               f"| machine | {idics.machine_text()} |",
               f"| finished | {datetime.now(timezone.utc).isoformat(timespec='seconds')} |",
