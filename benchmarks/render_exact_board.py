@@ -25,14 +25,7 @@ from workbench.experiments.calibration.views import board_outline_mm, sensor_spe
 from workbench.poses import random_board_poses
 from workbench.rigs import get_rig
 
-
-def _best(fn, repeat=2):
-    times, out = [], None
-    for _ in range(repeat):
-        t0 = time.perf_counter()
-        out = fn()
-        times.append(time.perf_counter() - t0)
-    return min(times), out
+from timing import best_of
 
 
 def main() -> None:
@@ -54,12 +47,12 @@ def main() -> None:
         render_view_exact(sensor_spec_for(rig, "left"), *rig.pose("left"), [surface])     # numba compile / load
         for side in ("left", "right"):
             spec, pose = sensor_spec_for(rig, side), rig.pose(side)
-            t_ex, (exact, info) = _best(lambda: render_view_exact(spec, *pose, [surface]))
+            t_ex, (exact, info) = best_of(lambda: render_view_exact(spec, *pose, [surface]))
             print(f"{name:20s} {side:5s}: exact {t_ex:6.3f} s ({info['polygons']} polygons, crop "
                   f"{info['crop'][2]} x {info['crop'][3]} px)")
             if name != "checkerboard 12 x 9":
                 continue
-            t_ad, ad = _best(lambda: render_views_adaptive([(spec, pose)], [surface], seed=1,
+            t_ad, ad = best_of(lambda: render_views_adaptive([(spec, pose)], [surface], seed=1,
                                                            settings=AdaptiveSettings(target_mc_grey=0.3))[0], 1)
             # reference window: centred on the projected board centre (edges of many squares)
             centre = np.nanmean(np.argwhere(exact > 0), axis=0).astype(int)

@@ -30,14 +30,7 @@ from workbench.experiments.rigid_motion.scenes import rigid_motion_truth
 from workbench.poses import common_view_centre_mm
 from workbench.rigs import get_rig
 
-
-def _best(fn, repeat=2):
-    times, out = [], None
-    for _ in range(repeat):
-        t0 = time.perf_counter()
-        out = fn()
-        times.append(time.perf_counter() - t0)
-    return min(times), out
+from timing import best_of
 
 
 def _rot_y(deg: float) -> np.ndarray:
@@ -77,9 +70,9 @@ def main() -> None:
         spec0, pose0 = cams["left"]
         render_view_exact(spec0, *pose0, surfaces, quadrature_order=args.order)     # numba compile / cache load
         for side, (spec, pose) in cams.items():
-            t_q, (image, info) = _best(lambda: render_view_exact(spec, *pose, surfaces, exposure_grey=255.0,
+            t_q, (image, info) = best_of(lambda: render_view_exact(spec, *pose, surfaces, exposure_grey=255.0,
                                                                  quadrature_order=args.order))
-            t_ad, ad = _best(lambda: render_views_adaptive([(spec, pose)], surfaces, seed=1, exposure_grey=255.0,
+            t_ad, ad = best_of(lambda: render_views_adaptive([(spec, pose)], surfaces, seed=1, exposure_grey=255.0,
                                                            settings=AdaptiveSettings(target_mc_grey=0.3))[0], 1)
             lit_rows, lit_cols = np.nonzero(image > 0)
             cy, cx = int(np.median(lit_rows)), int(np.median(lit_cols))

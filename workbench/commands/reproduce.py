@@ -12,6 +12,14 @@ from workbench.commands.options import (angle_deg_arg, integer_arg, non_negative
 from workbench.commands.sweep import run_study
 
 
+def add_speckle_renderer_option(parser) -> None:
+    """``--renderer auto|mitsuba`` of the experiments that render speckle states."""
+    parser.add_argument("--renderer", choices=("auto", "mitsuba"), default="auto",
+                        help="speckle states: auto renders without Monte Carlo where a view allows it (pinhole: exact "
+                             "coverage, Gauss-Legendre quadrature of the speckle), Mitsuba elsewhere; mitsuba: always "
+                             "Monte Carlo at --spp")
+
+
 def add_parser(sub) -> None:
     """The ``reproduce`` subcommand."""
     rep = sub.add_parser("reproduce", help="run one of the paper's checks and write a report")
@@ -50,10 +58,7 @@ def add_parser(sub) -> None:
                     help="pinhole (default) or thin lens at f/8 with the rig's tilted sensors (its focus plane misses the face)")
     rm.add_argument("--seed", type=seed_arg, default=0)
     rm.add_argument("--spp", type=positive_int_arg, default=64)
-    rm.add_argument("--renderer", choices=("auto", "mitsuba"), default="auto",
-                    help="speckle states: auto renders without Monte Carlo where a view allows it (pinhole: exact "
-                         "coverage, Gauss-Legendre quadrature of the speckle), Mitsuba elsewhere; mitsuba: always "
-                         "Monte Carlo at --spp")
+    add_speckle_renderer_option(rm)
     rm.add_argument("--subset", type=subset_arg, default=65)
     rm.add_argument("--step", type=positive_int_arg, default=5)
     rm.add_argument("--store", type=Path, default=None,
@@ -69,10 +74,7 @@ def add_parser(sub) -> None:
                     help="'rendered' (reproduced from rendered boards, default), 'true' (the true rig) or a file")
     bd.add_argument("--seed", type=seed_arg, default=0)
     bd.add_argument("--spp", type=positive_int_arg, default=64)
-    bd.add_argument("--renderer", choices=("auto", "mitsuba"), default="auto",
-                    help="speckle states: auto renders without Monte Carlo where a view allows it (pinhole: exact "
-                         "coverage, Gauss-Legendre quadrature of the speckle), Mitsuba elsewhere; mitsuba: always "
-                         "Monte Carlo at --spp")
+    add_speckle_renderer_option(bd)
     bd.add_argument("--noise-grey", type=non_negative_float_arg, default=1.0)
     bd.add_argument("--subset", type=subset_arg, default=65)
     bd.add_argument("--step", type=positive_int_arg, default=5)
