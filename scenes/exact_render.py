@@ -151,19 +151,22 @@ def closed_surface(surfaces: list[TexturedSurface]) -> bool:
     """True when the surfaces together form a closed, consistently oriented mesh (every edge, matched by its
     vertices' exact coordinates, used once in each direction): seen from outside, its back faces are hidden
     behind its front faces, so they can be left out of the image instead of being detected as an overlap."""
-    V = np.concatenate([np.asarray(s.vertices_mm, dtype=float) for s in surfaces])
+    V = np.ascontiguousarray(np.concatenate([np.asarray(s.vertices_mm, dtype=float) for s in surfaces]))
     offsets = np.cumsum([0] + [len(s.vertices_mm) for s in surfaces[:-1]])
     F = np.concatenate([np.asarray(s.faces, dtype=np.int64) + o for s, o in zip(surfaces, offsets)])
-    _, ids = np.unique(V, axis=0, return_inverse=True)
+    # one id per distinct vertex position (rows compared as raw bytes: exact coordinates)
+    _, ids = np.unique(V.view(np.dtype((np.void, V.dtype.itemsize * 3))).ravel(), return_inverse=True)
     F = ids.reshape(-1)[F]
-    directed = np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]])
-    if np.any(directed[:, 0] == directed[:, 1]):
+    a = np.concatenate([F[:, 0], F[:, 1], F[:, 2]])
+    b = np.concatenate([F[:, 1], F[:, 2], F[:, 0]])
+    if np.any(a == b):
         return False
-    unique_directed, counts = np.unique(directed, axis=0, return_counts=True)
+    n = np.int64(ids.max() + 1)
+    directed = a * n + b
+    unique_directed, counts = np.unique(directed, return_counts=True)
     if np.any(counts != 1):
         return False
-    reverse = set(map(tuple, unique_directed[:, ::-1]))
-    return all(tuple(e) in reverse for e in unique_directed)
+    return bool(np.all(np.isin(b * n + a, unique_directed)))
 
 
 def _corner_rays(spec: SensorSpec, x0: int, y0: int, w: int, h: int) -> np.ndarray:
@@ -291,11 +294,12 @@ def _bilinear_window(spec, R, t, bilinear, xy, starts, origin, shape, exposure_g
         rows, cols = tex.shape
         uv = np.asarray(surface.uv, dtype=float) * np.array([cols, rows]) - 0.5
         # each triangle's pixel range, from its projected (edge-subdivided) outline
-        boxes = np.empty((stop - first, 4), dtype=np.int64)
-        for k, p in enumerate(range(first, stop)):
-            pts = xy[starts[p]:starts[p + 1]]
-            boxes[k] = [np.floor(pts[:, 0].min() + 0.5) - x0, np.floor(pts[:, 1].min() + 0.5) - y0,
-                        np.floor(pts[:, 0].max() + 0.5) + 1 - x0, np.floor(pts[:, 1].max() + 0.5) + 1 - y0]
+        seg = slice(starts[first], starts[stop])
+        local = starts[first:stop] - starts[first]
+        lo = np.minimum.reduceat(xy[seg], local, axis=0)
+        hi = np.maximum.reduceat(xy[seg], local, axis=0)
+        boxes = np.column_stack([np.floor(lo[:, 0] + 0.5) - x0, np.floor(lo[:, 1] + 0.5) - y0,
+                                 np.floor(hi[:, 0] + 0.5) + 1 - x0, np.floor(hi[:, 1] + 0.5) + 1 - y0]).astype(np.int64)
         boxes[:, [0, 2]] = np.clip(boxes[:, [0, 2]], 0, w)
         boxes[:, [1, 3]] = np.clip(boxes[:, [1, 3]], 0, h)
         S, Wt = integrate_triangles(V[faces], uv[faces], boxes, rays, tex, order)
