@@ -156,3 +156,18 @@ def fill_from_neighbours(mean: np.ndarray, known: np.ndarray, wanted: np.ndarray
                         count += 1
             out[r, c] = total / count if count else 0.0
     return out
+
+
+def warm_up() -> None:
+    """Compile (or load from numba's disk cache) the kernels on a tiny input: ``python -m scenes.quadrature_raster``
+    runs it, so a long job can fill the cache in another process before it first renders."""
+    P = np.array([[[-1.0, -1.0, 10.0], [1.0, -1.0, 10.0], [0.0, 1.0, 10.0]]])
+    uv = np.array([[[0.0, 0.0], [1.0, 0.0], [0.5, 1.0]]])
+    xs, ys = np.meshgrid(np.linspace(-0.2, 0.2, 5), np.linspace(-0.2, 0.2, 5))
+    rays = np.stack([xs, ys, np.ones_like(xs)], axis=-1)
+    S, W = integrate_triangles(P, uv, np.array([[0, 0, 4, 4]]), rays, np.ones((2, 2)), 2)
+    fill_from_neighbours(np.where(W > 0, S, 0.0), W > 0, np.ones(W.shape, dtype=bool))
+
+
+if __name__ == "__main__":
+    warm_up()
