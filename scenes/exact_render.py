@@ -276,7 +276,6 @@ def render_view_exact(spec: SensorSpec, R_cam_from_world: np.ndarray, t_cam_from
 
 def _bilinear_window(spec, R, t, bilinear, xy, starts, origin, shape, exposure_grey, order) -> np.ndarray:
     """Grey levels of the bilinear surfaces over the crop: exact coverage x quadrature mean (see above)."""
-    from scenes.coverage_raster import accumulate_flat as _coverage
     from scenes.quadrature_raster import fill_from_neighbours, integrate_triangles
 
     x0, y0 = origin
@@ -288,7 +287,7 @@ def _bilinear_window(spec, R, t, bilinear, xy, starts, origin, shape, exposure_g
             continue
         sel = np.zeros(len(starts) - 1)
         sel[first:stop] = 1.0
-        covered = _coverage(xy, starts, sel, shape, (x0, y0))
+        covered = accumulate_flat(xy, starts, sel, shape, (x0, y0))
         V = np.asarray(surface.vertices_mm, dtype=float) @ R.T + t
         tex = np.asarray(surface.texture, dtype=np.float64)
         rows, cols = tex.shape
