@@ -247,7 +247,8 @@ def _allocate(sigma: np.ndarray, lit: np.ndarray, pilot_side: int, sides, target
         return kappa * np.sqrt(np.sum(counts * centre ** 2 * side ** (-2.0 * p)) / n_lit)
 
     lo, hi = 1e-12, 1e12
-    if rms(hi) > target:                                          # even the finest grid everywhere misses it
+    saturated = rms(hi) > target
+    if saturated:                                                 # even the finest grid everywhere misses it
         lam = hi
     else:
         for _ in range(80):
@@ -255,6 +256,9 @@ def _allocate(sigma: np.ndarray, lit: np.ndarray, pilot_side: int, sides, target
             lo, hi = (lo, mid) if rms(mid) <= target else (mid, hi)
         lam = hi
     side, over = sides_for(lam, sigma)
+    if saturated:
+        # every pixel at the finest grid: the ones still above the target on their own are the misses
+        over = kappa * sigma * grid[-1] ** -p > target
     level = np.searchsorted(grid, side) - 1                       # grid[0] is the pilot -> -1
     level[~lit | (sigma == 0)] = -1
     return level, over & varying
@@ -262,12 +266,18 @@ def _allocate(sigma: np.ndarray, lit: np.ndarray, pilot_side: int, sides, target
 
 def render_views_adaptive(views: list[tuple[SensorSpec, tuple[np.ndarray, np.ndarray]]],
                           surfaces: list[TexturedSurface], *, seed: int = 0, exposure_grey: float = 255.0,
-                          settings: AdaptiveSettings | None = None) -> list[AdaptiveRender]:
+                          settings: AdaptiveSettings | None = None,
+                          known: list[tuple[np.ndarray, np.ndarray]] | None = None) -> list[AdaptiveRender]:
     """Render ``surfaces`` in every view ``(spec, (R_cam_from_world, t_cam_from_world_mm))`` of one scene.
 
     The scene (and its textures and acceleration structure) is loaded once for all the views, e.g. the two
     cameras of a stereo state. View ``i`` uses sampler seed ``seed + i`` (Monte-Carlo noise is pixel-locked:
     give every image its own).
+
+    ``known``: per view ``(image_grey (H, W), mask (H, W) bool)`` of pixels already made without Monte Carlo
+    (:func:`scenes.exact_render.render_view_in_focus`): they are taken as given, with 0 samples, and serve as
+    the neighbours of the sampled pixels; only the others are traced. Noise figures are of the traced pixels;
+    ``mc["known_pixels"]`` counts the given ones inside the crop.
 
     Returns one :class:`AdaptiveRender` per view; its ``mc`` holds ``target_grey``, ``mc_rms_grey``
     (measured RMS Monte-Carlo error of the lit pixels, from ``check_pixels`` pixels rendered twice),
@@ -297,9 +307,18 @@ def render_views_adaptive(views: list[tuple[SensorSpec, tuple[np.ndarray, np.nda
         thin = spec.lens == "thin"
         box = _crop_box(spec, pose, surfaces, settings.margin_px) if settings.crop else (0, 0, spec.width, spec.height)
         ps = settings.pilot_side
+        given_image, given = (None, None) if known is None else known[i]
+        if given is not None and (np.shape(given) != (spec.height, spec.width)
+                                  or np.shape(given_image) != (spec.height, spec.width)):
+            raise ValueError(f"known pixels of view {i}: image and mask must be {spec.height} x {spec.width}")
         while True:
             pixels = _window_pixels(box, spec.width)
-            value, spread = _trace(scene, sensors[i], pixels, spec.width, ps, _stream(view_seed, 0), thin, spread=True)
+            todo = np.ones(len(pixels), dtype=bool) if given is None else ~np.asarray(given, bool).ravel()[pixels]
+            value, spread = np.zeros(len(pixels)), np.zeros(len(pixels))
+            if given is not None:
+                value[~todo] = np.asarray(given_image, np.float64).ravel()[pixels[~todo]] / exposure_grey
+            value[todo], spread[todo] = _trace(scene, sensors[i], pixels[todo], spec.width, ps,
+                                               _stream(view_seed, 0), thin, spread=True)
             if box == (0, 0, spec.width, spec.height) or not _lit_on_edge(value, box, spec):
                 break
             x0, y0, w, h = box                     # the box missed part of a surface: grow it and start again
@@ -316,8 +335,8 @@ def render_views_adaptive(views: list[tuple[SensorSpec, tuple[np.ndarray, np.nda
         contrast = _max3(img) - _min3(img)
         sigma = np.where(own > 0, np.maximum(own, _mean3(own)),
                          np.where(contrast > 0, np.maximum(_max3(own), 0.5 * contrast), 0.0)).ravel()
-        lit = (value != 0) | (contrast.ravel() > 0)     # a background pixel beside a lit one may be clipped
-        traced = ps * ps * len(pixels)
+        lit = ((value != 0) | (contrast.ravel() > 0)) & todo    # a background pixel beside a lit one may be clipped
+        traced = ps * ps * int(todo.sum())
         # How the error falls with the grid here (an edge: side^-1.5, a smooth texture: side^-2): measured on
         # a random share of the varying pixels, rendered twice at two grids.
         rng = np.random.default_rng([view_seed & 0xFFFFFFFF, 0xCA1B])
@@ -334,7 +353,7 @@ def render_views_adaptive(views: list[tuple[SensorSpec, tuple[np.ndarray, np.nda
                 p = float(np.clip(np.log(ratio[4] / ratio[8]) / np.log(2.0), 1.0, 2.5))
                 kappa = float(ratio[8] * 8.0 ** p)
         level, worst = _allocate(sigma, lit, ps, settings.sides, target, kappa, p)
-        spp = np.full(len(pixels), ps * ps, dtype=np.int64)
+        spp = np.where(todo, ps * ps, 0).astype(np.int64)
         # check pixels: a random share of the lit pixels, rendered a second time at their final stratification
         rng = np.random.default_rng([view_seed & 0xFFFFFFFF, 0xC0FFEE])
         check = lit & (rng.random(len(pixels)) < settings.check_fraction)
@@ -352,7 +371,7 @@ def render_views_adaptive(views: list[tuple[SensorSpec, tuple[np.ndarray, np.nda
                 again = _trace(scene, sensors[i], pixels[chk], spec.width, side, _stream(view_seed, 2 * side + 1), thin)
                 check_var[chk] = (again - value[chk]) ** 2 / 2.0          # variance of one batch's mean
                 traced += side * side * len(chk)
-        predicted = kappa * sigma * np.sqrt(spp) ** -p
+        predicted = np.where(spp > 0, kappa * sigma * np.sqrt(np.maximum(spp, 1)) ** -p, 0.0)   # 0: a known pixel
         image = np.zeros((spec.height, spec.width), dtype=np.float32)
         image[y0:y0 + h, x0:x0 + w] = (value * exposure_grey).reshape(h, w).astype(np.float32)
         spp_map = np.zeros((spec.height, spec.width), dtype=np.uint16)
@@ -370,6 +389,8 @@ def render_views_adaptive(views: list[tuple[SensorSpec, tuple[np.ndarray, np.nda
               "spp_histogram": {int(v): int(c) for v, c in zip(values, counts)},
               "crop": [int(c) for c in box], "crop_fraction": w * h / (spec.width * spec.height),
               "lit_pixels": n_lit, "seconds": time.perf_counter() - t0}
+        if given is not None:
+            mc["known_pixels"] = int((~todo).sum())
         missed = _target_missed(mc)
         mc["target_met"] = missed is None
         if missed is not None:
@@ -385,15 +406,66 @@ MISSED_FRACTION = 1e-3
 MISSED_RATIO = 1.25
 
 
+#: Check pixels enough for their measured noise to overrule the error model's prediction.
+MIN_CHECK_PIXELS = 200
+
+
 def _target_missed(mc: dict) -> str | None:
     """Why a view's MC noise target was not reached (the budget of ``sides`` too small), or None."""
     why = []
-    if mc["above_target_fraction"] > MISSED_FRACTION:
+    measured_ok = mc["check_pixels"] >= MIN_CHECK_PIXELS and mc["mc_rms_grey"] <= mc["target_grey"]
+    if mc["above_target_fraction"] > MISSED_FRACTION and not measured_ok:     # a measured pass beats a prediction
         why.append(f"{100 * mc['above_target_fraction']:.2g} % of the lit pixels would need more samples than the "
                    f"largest stratification allows (AdaptiveSettings.sides)")
     if mc["check_pixels"] and mc["mc_rms_grey"] > MISSED_RATIO * mc["target_grey"]:
         why.append(f"measured {mc['mc_rms_grey']:.3g} grey RMS on {mc['check_pixels']} check pixels")
     return "; ".join(why) or None
+
+
+@dataclass
+class AutoRender:
+    """One view of :func:`render_views_auto`: the image, which renderer made it, and how.
+
+    image_grey : (H, W) float32, grey levels before sensor noise
+    renderer : :data:`scenes.exact_render.RENDERER` / ``RENDERER_QUADRATURE`` (no Monte Carlo at all),
+        :data:`scenes.exact_render.RENDERER_IN_FOCUS` (a thin lens: in-focus pixels without Monte Carlo, the rest
+        adaptive Mitsuba) or ``"mitsuba-adaptive"``
+    mc : the adaptive render's noise figures (:func:`render_views_adaptive`), None where Mitsuba traced nothing
+    known_fraction : share of the view's lit pixels made without Monte Carlo
+    fallback : why the deterministic renderer could not be used at all, or None
+    """
+
+    image_grey: np.ndarray
+    renderer: str
+    mc: dict | None
+    known_fraction: float
+    fallback: str | None = None
+
+
+def render_views_auto(views: list[tuple[SensorSpec, tuple[np.ndarray, np.ndarray]]],
+                      surfaces: list[TexturedSurface], *, seed: int = 0, exposure_grey: float = 255.0,
+                      settings: AdaptiveSettings | None = None) -> list[AutoRender]:
+    """Every view of one scene with as little Monte Carlo as the optics allow.
+
+    Each view's pixels that need no sampling (:func:`scenes.exact_render.render_view_in_focus`: all of a pinhole
+    view, the in-focus ones of a thin lens) are made deterministically; where any view has pixels left, the
+    adaptive renderer (:func:`render_views_adaptive`, ``settings``) traces just those, all views from one
+    Mitsuba scene. A scene the deterministic renderer refuses (occlusion, a surface behind a camera) is rendered
+    by Mitsuba whole, with the reason in ``fallback``. Seeds as :func:`render_views_adaptive`.
+    """
+    from scenes.exact_render import RENDERER_IN_FOCUS, NotExactError, render_view_in_focus
+
+    try:
+        parts = [render_view_in_focus(spec, *pose, surfaces, exposure_grey=exposure_grey) for spec, pose in views]
+    except NotExactError as err:
+        rendered = render_views_adaptive(views, surfaces, seed=seed, exposure_grey=exposure_grey, settings=settings)
+        return [AutoRender(r.image_grey, "mitsuba-adaptive", r.mc, 0.0, str(err)) for r in rendered]
+    if all(known.all() for _, known, _ in parts):
+        return [AutoRender(image, info["renderer"], None, 1.0) for image, _, info in parts]
+    rendered = render_views_adaptive(views, surfaces, seed=seed, exposure_grey=exposure_grey, settings=settings,
+                                     known=[(image, known) for image, known, _ in parts])
+    return [AutoRender(r.image_grey, RENDERER_IN_FOCUS, r.mc, float(info["known_fraction"]))
+            for r, (_, _, info) in zip(rendered, parts)]
 
 
 def render_view_adaptive(spec: SensorSpec, R_cam_from_world, t_cam_from_world_mm, surfaces: list[TexturedSurface],
@@ -404,4 +476,5 @@ def render_view_adaptive(spec: SensorSpec, R_cam_from_world, t_cam_from_world_mm
                                  exposure_grey=exposure_grey, settings=settings)[0]
 
 
-__all__ = ["AdaptiveRender", "AdaptiveSettings", "render_view_adaptive", "render_views_adaptive"]
+__all__ = ["AdaptiveRender", "AdaptiveSettings", "AutoRender", "render_view_adaptive", "render_views_adaptive",
+           "render_views_auto"]

@@ -18,12 +18,19 @@ Gauss-Legendre rule per pixel (:mod:`scenes.quadrature_raster`; 6 x 6 by default
 Mitsuba renders, ``benchmarks/render_exact_speckle.py``). A closed mesh (the specimen box) is drawn without its
 back faces, which its front faces hide.
 
+Through a thin lens, :func:`render_view_in_focus` makes the pixels whose blur circle stays below
+:data:`MAX_BLUR_PX` (a face in the plane of sharp focus: the Scheimpflug rig's specimen face) the same way, and
+says which pixels it could not make (blurred faces, silhouettes, what they spill on) for Mitsuba's adaptive
+renderer to trace alone (:func:`scenes.adaptive.render_views_auto`).
+
 What it cannot render this way is refused with :class:`NotExactError` naming the reason, for the caller to fall
-back to Mitsuba: a thin lens (defocus), surfaces that overlap in the image (occlusion: detected exactly, as a
-pixel covered more than once), a surface reaching behind the camera. The agreement with Mitsuba is measured, not
-assumed (``tests/test_exact_render.py``).
+back to Mitsuba: a thin lens in :func:`render_view_exact` (defocus), surfaces that overlap in the image
+(occlusion: detected exactly, as a pixel covered more than once), a surface reaching behind the camera. The
+agreement with Mitsuba is measured, not assumed (``tests/test_exact_render.py``).
 """
 from __future__ import annotations
+
+import functools
 
 import numpy as np
 
@@ -35,12 +42,19 @@ from scenes.surfaces import TexturedSurface
 RENDERER = "exact-polygon"
 #: Name recorded with an image holding a bilinear texture (exact coverage, quadrature of the texture mean).
 RENDERER_QUADRATURE = "polygon-quadrature"
+#: Name recorded with a thin-lens image whose in-focus pixels are :func:`render_view_in_focus`'s and the rest
+#: (the faces it blurs beyond :data:`MAX_BLUR_PX`) Mitsuba's adaptive renders.
+RENDERER_IN_FOCUS = "in-focus-quadrature+mitsuba-adaptive"
 #: Gauss-Legendre nodes per pixel side for bilinear textures (``tests/test_exact_render.py`` measures the error).
 QUADRATURE_ORDER = 6
 #: Largest distance allowed between a projected edge and its straight pieces, px.
 CHORD_TOL_PX = 1e-4
 #: Coverage above 1 by more than this means two surfaces overlap in the image.
 OVERLAP_TOL = 1e-6
+#: Coverage below 1 by at most this counts as a wholly covered pixel (the exact areas' float rounding).
+COVERED_TOL = 1e-6
+#: Largest thin-lens blur circle (diameter, px) of a face :func:`render_view_in_focus` draws as sharp.
+MAX_BLUR_PX = 0.1
 
 
 class NotExactError(ValueError):
@@ -171,15 +185,26 @@ def closed_surface(surfaces: list[TexturedSurface]) -> bool:
 
 def _corner_rays(spec: SensorSpec, x0: int, y0: int, w: int, h: int) -> np.ndarray:
     """(h + 1, w + 1, 3) camera-frame ray directions ``(x_n, y_n, 1)`` through the corners of a crop's pixels."""
-    from scenes.truth import ideal_coordinates
-
-    xs = x0 - 0.5 + np.arange(w + 1)
-    ys = y0 - 0.5 + np.arange(h + 1)
-    X, Y = np.meshgrid(xs, ys)
-    xy = ideal_coordinates(spec, np.column_stack([X.ravel(), Y.ravel()]))
+    xy = _sensor_corner_coordinates(spec)[y0:y0 + h + 1, x0:x0 + w + 1]
     if not np.all(np.isfinite(xy)):
         raise NotExactError("the lens distortion cannot be inverted over the textured surface's pixels")
-    return np.concatenate([xy, np.ones((len(xy), 1))], axis=1).reshape(h + 1, w + 1, 3)
+    return np.concatenate([xy, np.ones(xy.shape[:2] + (1,))], axis=2)
+
+
+@functools.lru_cache(maxsize=4)
+def _sensor_corner_coordinates(spec: SensorSpec) -> np.ndarray:
+    """Ideal (undistorted) coordinates of every pixel corner of the sensor, (H + 1, W + 1, 2), read-only.
+
+    Undistorting is the costliest part of a view that is not the quadrature itself (~1 s for a 5 MP crop), and
+    the same for every state and seed a camera renders: computed once per camera (frozen, hashable spec)."""
+    from scenes.truth import ideal_coordinates
+
+    xs = np.arange(spec.width + 1) - 0.5
+    ys = np.arange(spec.height + 1) - 0.5
+    X, Y = np.meshgrid(xs, ys)
+    xy = ideal_coordinates(spec, np.column_stack([X.ravel(), Y.ravel()])).reshape(spec.height + 1, spec.width + 1, 2)
+    xy.setflags(write=False)
+    return xy
 
 
 def render_view_exact(spec: SensorSpec, R_cam_from_world: np.ndarray, t_cam_from_world_mm: np.ndarray,
@@ -219,51 +244,189 @@ def render_view_exact(spec: SensorSpec, R_cam_from_world: np.ndarray, t_cam_from
         raise ValueError("nothing to render: no surfaces given")
     R = np.asarray(R_cam_from_world, dtype=float)
     t = np.asarray(t_cam_from_world_mm, dtype=float).reshape(3)
-    centre = -R.T @ t
     cull = closed_surface(surfaces)
+    drawn, emitting = [], []
+    for surface in surfaces:
+        facing = _facing_distance_mm(surface, -R.T @ t) > 0          # the emitting side is seen
+        drawn.append(facing if cull else np.ones(len(facing), dtype=bool))
+        emitting.append(facing)
+    image, coverage, info = _draw(spec, R, t, surfaces, drawn, emitting, exposure_grey, chord_tol_px,
+                                  quadrature_order)
+    info["back_faces_culled"] = bool(cull)
+    return image, info
+
+
+def render_view_in_focus(spec: SensorSpec, R_cam_from_world: np.ndarray, t_cam_from_world_mm: np.ndarray,
+                         surfaces: list[TexturedSurface], *, max_blur_px: float = MAX_BLUR_PX,
+                         exposure_grey: float = 255.0, chord_tol_px: float = CHORD_TOL_PX,
+                         quadrature_order: int = QUADRATURE_ORDER) -> tuple[np.ndarray, np.ndarray, dict]:
+    """The pixels of a view that need no Monte Carlo, through a pinhole *or a thin lens*, and which ones they are.
+
+    A pinhole view is :func:`render_view_exact` whole (every pixel known). Through a thin lens, the rays of a
+    pixel converge on its chief ray in the plane of sharp focus and spread around it by the blur circle of the
+    depth they meet: where that circle is at most ``max_blur_px`` across, the thin-lens pixel is the pinhole
+    pixel convolved with a disc of radius ``<= max_blur_px / 2``, an error of ``r^2 / 8`` times the image's
+    Laplacian (about 0.01 grey on the paper's speckle at 0.1 px; measured in ``tests/test_exact_render.py``).
+    A pixel is *known* when
+
+    * every pixel of its 3 x 3 neighbourhood is wholly covered by such sharp faces (the disc cannot reach
+      past them), and no other face (blurred beyond the limit, or seen edge-on from part of the aperture) lies
+      within its own blur radius + 1 px; or
+    * no face at all lies within reach (sharp faces: 1 px; the others: their blur radius + 1 px): it is 0.
+
+    The rest (blurred side faces, silhouettes, what they spill on) is for Mitsuba
+    (:func:`scenes.adaptive.render_views_adaptive` with ``known=``).
+
+    Parameters
+    ----------
+    spec, R_cam_from_world, t_cam_from_world_mm, surfaces, exposure_grey, chord_tol_px, quadrature_order :
+        as :func:`render_view_exact`
+    max_blur_px : largest blur circle diameter of a face drawn as sharp, px
+
+    Returns
+    -------
+    image_grey : (height, width) float32, the known pixels' grey levels (0 elsewhere)
+    known : (height, width) bool
+    info : :func:`render_view_exact`'s, with ``known_fraction`` (of the pixels where any surface is seen or
+        spills), ``max_blur_px`` and ``sharp_faces`` / ``blurred_faces``
+
+    Raises
+    ------
+    NotExactError
+        A surface behind the camera, or sharp faces that overlap in the image.
+    """
+    if spec.lens == "pinhole":
+        image, info = render_view_exact(spec, R_cam_from_world, t_cam_from_world_mm, surfaces,
+                                        exposure_grey=exposure_grey, chord_tol_px=chord_tol_px,
+                                        quadrature_order=quadrature_order)
+        info.update(known_fraction=1.0, max_blur_px=0.0)
+        return image, np.ones(image.shape, dtype=bool), info
+    if not surfaces:
+        raise ValueError("nothing to render: no surfaces given")
+    if not max_blur_px >= 0:
+        raise ValueError(f"max_blur_px must be >= 0, got {max_blur_px}")
+    from scipy.ndimage import maximum_filter, minimum_filter
+
+    from scenes.truth import defocus_blur_px
+
+    R = np.asarray(R_cam_from_world, dtype=float)
+    t = np.asarray(t_cam_from_world_mm, dtype=float).reshape(3)
+    centre = -R.T @ t
+    aperture_radius_mm = 0.5 * spec.focal_length_mm / spec.f_number
+    cull = closed_surface(surfaces)
+    sharp, emitting, other = [], [], []
+    other_blur_px = 0.0
+    for surface in surfaces:
+        distance = _facing_distance_mm(surface, centre)
+        # a face whose plane passes through the aperture is seen from one side by part of it: never sharp
+        front, back = distance > aperture_radius_mm, distance < -aperture_radius_mm
+        faces = np.asarray(surface.faces, dtype=int)
+        blur = defocus_blur_px(spec, R, t, surface.vertices_mm)[faces].max(axis=1)
+        seen = ~back if cull else np.ones(len(faces), dtype=bool)
+        ok = (front | back) & (blur <= max_blur_px) & seen              # NaN blur (behind the lens) is not ok
+        sharp.append(ok)
+        emitting.append(ok & front)
+        other.append(seen & ~ok)
+        if (seen & ~ok).any():
+            other_blur_px = max(other_blur_px, float(np.nanmax(np.where(seen & ~ok, blur, 0.0))))
+    image, coverage, info = _draw(spec, R, t, surfaces, sharp, emitting, exposure_grey, chord_tol_px,
+                                  quadrature_order)
+    reach_other = int(np.ceil(0.5 * other_blur_px)) + 1
+    near_other = np.zeros(image.shape, dtype=bool)
+    if any(o.any() for o in other):
+        tris = [np.asarray(s.vertices_mm, dtype=float)[np.asarray(s.faces, dtype=int)[o]]
+                for s, o in zip(surfaces, other)]
+        polys = list(np.concatenate([tri for tri in tris if len(tri)]))
+        xy, starts = _project_outlines(spec, R, t, polys, max(chord_tol_px, 0.05))
+        # a blurred face just outside the sensor spills onto its edge: the window reaches past the sensor
+        r = reach_other + 1
+        x0 = int(np.clip(np.floor(xy[:, 0].min()) - r, -r, spec.width + r))
+        y0 = int(np.clip(np.floor(xy[:, 1].min()) - r, -r, spec.height + r))
+        x1 = int(np.clip(np.ceil(xy[:, 0].max()) + r + 1, -r, spec.width + r))
+        y1 = int(np.clip(np.ceil(xy[:, 1].max()) + r + 1, -r, spec.height + r))
+        if x1 > x0 and y1 > y0:
+            cov = accumulate_flat(xy, starts, np.ones(len(polys)), (y1 - y0, x1 - x0), (x0, y0))
+            near = maximum_filter(np.abs(cov) > 0, size=2 * reach_other + 1)
+            ix0, iy0 = max(x0, 0), max(y0, 0)
+            ix1, iy1 = min(x1, spec.width), min(y1, spec.height)
+            if ix1 > ix0 and iy1 > iy0:
+                near_other[iy0:iy1, ix0:ix1] = near[iy0 - y0:iy1 - y0, ix0 - x0:ix1 - x0]
+    whole = coverage >= 1.0 - COVERED_TOL
+    lit = coverage > 0
+    # beyond the sensor's edge nothing is known (cval): its edge pixels are Mitsuba's where a surface is seen
+    known = ((minimum_filter(whole, size=3, mode="constant", cval=False)
+              | ~maximum_filter(lit, size=3, mode="constant", cval=True)) & ~near_other)
+    image[~known] = 0.0
+    reached = ~known | lit
+    info.update(renderer=RENDERER_QUADRATURE if info.get("quadrature_nodes") else RENDERER,
+                back_faces_culled=bool(cull), max_blur_px=float(max_blur_px),
+                sharp_faces=int(sum(int(s.sum()) for s in sharp)),
+                blurred_faces=int(sum(int(o.sum()) for o in other)),
+                known_fraction=float((known & reached).sum() / max(int(reached.sum()), 1)))
+    return image, known, info
+
+
+def _facing_distance_mm(surface: TexturedSurface, centre_world_mm: np.ndarray) -> np.ndarray:
+    """Signed distance of the camera centre from every face's plane, mm (> 0: the emitting side is seen)."""
+    faces = np.asarray(surface.faces, dtype=int)
+    V = np.asarray(surface.vertices_mm, dtype=float)
+    normals = np.cross(V[faces[:, 1]] - V[faces[:, 0]], V[faces[:, 2]] - V[faces[:, 0]])
+    length = np.linalg.norm(normals, axis=1)
+    return np.einsum("ij,ij->i", normals, centre_world_mm - V[faces[:, 0]]) / np.where(length > 0, length, 1.0)
+
+
+def _pixel_box(xy: np.ndarray, spec: SensorSpec, margin: int):
+    """(x0, y0, x1, y1) pixel window around projected points widened by ``margin``, clipped; None if empty."""
+    x0 = int(np.clip(np.floor(xy[:, 0].min()) - margin, 0, spec.width))
+    y0 = int(np.clip(np.floor(xy[:, 1].min()) - margin, 0, spec.height))
+    x1 = int(np.clip(np.ceil(xy[:, 0].max()) + margin + 1, 0, spec.width))
+    y1 = int(np.clip(np.ceil(xy[:, 1].max()) + margin + 1, 0, spec.height))
+    return None if x1 <= x0 or y1 <= y0 else (x0, y0, x1, y1)
+
+
+def _draw(spec, R, t, surfaces, drawn, emitting, exposure_grey, chord_tol_px, quadrature_order
+          ) -> tuple[np.ndarray, np.ndarray, dict]:
+    """Image and coverage of the ``drawn`` faces of every surface (``emitting`` ones with their radiance, the
+    rest black but opaque), full sensor; refuses overlapping faces."""
     polys, values, front, smooth = [], [], [], []      # smooth: index of the bilinear surface, -1 for prints
     bilinear = []
-    for index, surface in enumerate(surfaces):
+    for index, (surface, draw, emit) in enumerate(zip(surfaces, drawn, emitting)):
         faces = np.asarray(surface.faces, dtype=int)
         V = np.asarray(surface.vertices_mm, dtype=float)
-        normals = np.cross(V[faces[:, 1]] - V[faces[:, 0]], V[faces[:, 2]] - V[faces[:, 0]])
-        facing = np.einsum("ij,ij->i", normals, centre - V[faces[:, 0]]) > 0   # the emitting side is seen
+        lit, dark = draw & emit, draw & ~emit
         if surface.filter == "bilinear":
-            kept = faces[facing] if cull else faces
-            bilinear.append((surface, faces[facing], len(polys), len(polys) + int(facing.sum())))
-            polys += list(V[faces[facing]]) + ([] if cull else list(V[faces[~facing]]))
-            values.append(np.zeros(len(kept)))
-            front.append(np.ones(len(kept), dtype=bool) if cull else np.concatenate(
-                [np.ones(int(facing.sum()), dtype=bool), np.zeros(int((~facing).sum()), dtype=bool)]))
-            smooth.append(np.full(len(kept), index))
+            bilinear.append((surface, faces[lit], len(polys), len(polys) + int(lit.sum())))
+            polys += list(V[faces[lit]]) + list(V[faces[dark]])
+            values.append(np.zeros(int(draw.sum())))
+            front.append(np.concatenate([np.ones(int(lit.sum()), dtype=bool), np.zeros(int(dark.sum()), dtype=bool)]))
+            smooth.append(np.full(int(draw.sum()), index))
             continue
         p, v, owner = _texel_polygons(surface, faces)
-        keep = facing[owner] if cull else np.ones(len(p), dtype=bool)
+        keep = draw[owner]
         polys += [q for q, k in zip(p, keep) if k]
         values.append(v[keep])
-        front.append(facing[owner][keep])
+        front.append(emit[owner][keep])
         smooth.append(np.full(int(keep.sum()), -1))
     values, front, smooth = np.concatenate(values), np.concatenate(front), np.concatenate(smooth)
     info = {"renderer": RENDERER_QUADRATURE if bilinear else RENDERER, "polygons": len(polys), "crop": [0, 0, 0, 0],
-            "max_coverage": 0.0, "back_faces_culled": bool(cull)}
+            "max_coverage": 0.0}
     if bilinear:
         info["quadrature_nodes"] = int(quadrature_order) ** 2
     image = np.zeros((spec.height, spec.width), dtype=np.float32)
+    coverage = np.zeros((spec.height, spec.width), dtype=np.float64)
     if not polys:
-        return image, info
+        return image, coverage, info
     xy, starts = _project_outlines(spec, R, t, polys, chord_tol_px)
-    x0 = int(np.clip(np.floor(xy[:, 0].min()) - 1, 0, spec.width))
-    y0 = int(np.clip(np.floor(xy[:, 1].min()) - 1, 0, spec.height))
-    x1 = int(np.clip(np.ceil(xy[:, 0].max()) + 2, 0, spec.width))
-    y1 = int(np.clip(np.ceil(xy[:, 1].max()) + 2, 0, spec.height))
+    box = _pixel_box(xy, spec, 1)
+    if box is None:
+        return image, coverage, info
+    x0, y0, x1, y1 = box
     info["crop"] = [x0, y0, x1 - x0, y1 - y0]
-    if x1 <= x0 or y1 <= y0:
-        return image, info
     shape = (y1 - y0, x1 - x0)
-    coverage = accumulate_flat(xy, starts, np.ones(len(polys)), shape, (x0, y0))
-    info["max_coverage"] = float(coverage.max())
-    if coverage.max() > 1.0 + OVERLAP_TOL:
-        raise NotExactError(f"surfaces overlap in the image (a pixel is covered {coverage.max():.4f} times): "
+    window_coverage = accumulate_flat(xy, starts, np.ones(len(polys)), shape, (x0, y0))
+    info["max_coverage"] = float(window_coverage.max())
+    if window_coverage.max() > 1.0 + OVERLAP_TOL:
+        raise NotExactError(f"surfaces overlap in the image (a pixel is covered {window_coverage.max():.4f} times): "
                             "occlusion needs ray tracing")
     weights = np.where(front & (smooth < 0), values * float(exposure_grey), 0.0)
     window = accumulate_flat(xy, starts, weights, shape, (x0, y0))
@@ -271,7 +434,8 @@ def render_view_exact(spec: SensorSpec, R_cam_from_world: np.ndarray, t_cam_from
         window += _bilinear_window(spec, R, t, bilinear, xy, starts, (x0, y0), shape, exposure_grey,
                                    quadrature_order)
     image[y0:y1, x0:x1] = window.astype(np.float32)
-    return image, info
+    coverage[y0:y1, x0:x1] = window_coverage
+    return image, coverage, info
 
 
 def _bilinear_window(spec, R, t, bilinear, xy, starts, origin, shape, exposure_grey, order) -> np.ndarray:

@@ -206,7 +206,9 @@ class Instrument:
 #: that changes its images gets a new tag).
 BOARD_RENDERER_TAGS = {"auto": "exact-polygon/1 else mitsuba", "mitsuba": "mitsuba"}
 #: The same for the speckle states (the quadrature order is part of the renderer's version).
-SPECKLE_RENDERER_TAGS = {"auto": "polygon-quadrature/1 order 6 else mitsuba", "mitsuba": "mitsuba"}
+SPECKLE_RENDERER_TAGS = {
+    "auto": "polygon-quadrature/2 order 6, thin lens in focus <= 0.1 px + mitsuba-adaptive, else mitsuba",
+    "mitsuba": "mitsuba"}
 
 #: Which sections of a scenario change the images of each dataset it renders.
 DATASET_SECTIONS = {

@@ -107,6 +107,9 @@ def append_idics(out_dir: str | Path, stage: str, metrics: dict) -> None:
 SPECKLE_RENDERER_TEXT = {
     "polygon-quadrature": "without Monte Carlo (exact coverage of the specimen's faces, Gauss-Legendre quadrature of "
                           "the speckle, 6 x 6 nodes per pixel; scenes.exact_render)",
+    "in-focus-quadrature+mitsuba-adaptive": "through thin lenses: the pixels in focus (blur circle <= 0.1 px) "
+                                            "without Monte Carlo as above, the blurred rest (end faces, "
+                                            "silhouette) by Mitsuba, adaptive (scenes.adaptive.render_views_auto)",
     "mitsuba-adaptive": "by Mitsuba, adaptive (scenes.adaptive)",
     "mitsuba": "by Mitsuba at a fixed spp",
 }
@@ -117,6 +120,12 @@ def render_lines(m: dict) -> list[str]:
     adaptive Monte-Carlo renders' measured noise and cost (nothing for metrics without either)."""
     lines = []
     made = m.get("speckle_renderers") or {}
+    hybrid = "in-focus-quadrature+mitsuba-adaptive"
+    if made.get(hybrid):
+        shares = m.get("speckle_known_fraction")
+        lines.append(f"Renders: {made[hybrid]} images {SPECKLE_RENDERER_TEXT[hybrid]}"
+                     + (f"; {100 * shares[0]:.1f}-{100 * shares[1]:.1f} % of each image's lit pixels without Monte "
+                        "Carlo" if shares else "") + ".")
     if made.get("polygon-quadrature"):
         lines.append(f"Renders: {made['polygon-quadrature']} images {SPECKLE_RENDERER_TEXT['polygon-quadrature']}"
                      + (f"; {sum(v for k, v in made.items() if k != 'polygon-quadrature')} by Mitsuba where a view "

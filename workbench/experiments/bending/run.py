@@ -30,7 +30,7 @@ from measurement.strain import surface_strain, virtual_strain_gauge_px
 from workbench.experiments.bending.scenes import BENDING_LOADS_N, load_bending_truth, render_bending
 from workbench.experiments.calibration.run import render_content, mc_summary
 from workbench.experiments.rigid_motion.run import face_roi, finite_or_none, rig_for_name
-from workbench.experiments.rigid_motion.scenes import speckle_render_content
+from workbench.experiments.rigid_motion.scenes import known_fraction_range, speckle_render_content
 from workbench.store import dataset_record, stored_render
 from workbench.points_with_truth import Alignment, write_alignment, write_points_readme, write_points_with_truth
 from workbench.rigs import scheimpflug_design_report
@@ -95,7 +95,7 @@ def reproduce_bending(out_dir: str | Path, *, scale: float = 1.0, rig_name: str 
     rig, rig_text = rig_for_name(calib, rig_name, scale, out_dir, seed, store, mc_target_grey,  # bad file: first
                                   calibration_views)
     content = {"experiment": "bending", "rig": rig_name, "scale": float(scale), "lens": lens, "seed": seed,
-               **render_content(spp, mc_target_grey), **speckle_render_content(renderer, lens),
+               **render_content(spp, mc_target_grey), **speckle_render_content(renderer, lens, mc_target_grey),
                "read_noise_grey": float(noise_grey), "loads_N": [float(v) for v in loads],
                "fe": "ThreePointBending defaults/1"}
     images, _ = stored_render("bending", content, lambda folder: render_bending(
@@ -224,6 +224,7 @@ def reproduce_bending(out_dir: str | Path, *, scale: float = 1.0, rig_name: str 
                "images_dataset": dataset_record("bending", content, images), "lens": lens, "scale": scale,
                **render_content(spp, mc_target_grey), "render_mc": mc_summary(truth.info["render"].get("mc", [])),
                "speckle_renderers": truth.info["render"].get("renderers", {}),
+               "speckle_known_fraction": known_fraction_range(truth.info["render"].get("images", [])),
                "noise_grey": noise_grey, "subset_px": subset_size, "step_px": step,
                "strain_window": window if window is not None else "per-triangle (Cosserat point elements)",
                "vsg_px": vsg, "roi_px": list(roi), "points": int(shape.x.size),

@@ -182,8 +182,10 @@ def run_depth_of_field_study(scale: float = 0.5, object_tilt_deg: float = 38.0, 
     """MIG, blur, DIC noise floor and displacement error of the tilted and untilted sensor at one f-number.
 
     The plate moves by ``shift_px`` pixels' worth (at its centre) along its own x axis between the two renders.
-    ``mc_target_grey``: both cameras from one scene with :mod:`scenes.adaptive` at that Monte-Carlo noise
-    (``spp`` unused); the measured noise per image is in ``figures[camera]["render_mc"]``.
+    ``mc_target_grey``: both cameras from one scene with :func:`scenes.adaptive.render_views_auto` (the pixels in
+    focus without Monte Carlo, the blurred rest adaptive at that Monte-Carlo noise; ``spp`` unused); the
+    measured noise, renderer and share of pixels made without Monte Carlo per image are in
+    ``figures[camera]["render_mc"]``.
     Returns ``(scene, images {"static"|"moved": {camera: image}}, figures per camera)``.
     """
     scene = depth_of_field_scene(scale=scale, object_tilt_deg=object_tilt_deg, f_number=f_number, seed=seed)
@@ -199,13 +201,15 @@ def run_depth_of_field_study(scale: float = 0.5, object_tilt_deg: float = 38.0, 
                                              seed=seed + 1 + (key == "moved")).image_grey
                            for name, spec in scene.specs.items()}
         else:
-            from scenes.adaptive import AdaptiveSettings, render_views_adaptive
+            from scenes.adaptive import AdaptiveSettings, render_views_auto
             names = list(scene.specs)
-            rendered = render_views_adaptive([(scene.specs[n], (np.eye(3), np.zeros(3))) for n in names], [surface],
-                                             seed=10 * (seed + 1 + (key == "moved")),
-                                             settings=AdaptiveSettings(target_mc_grey=mc_target_grey))
+            rendered = render_views_auto([(scene.specs[n], (np.eye(3), np.zeros(3))) for n in names], [surface],
+                                         seed=10 * (seed + 1 + (key == "moved")),
+                                         settings=AdaptiveSettings(target_mc_grey=mc_target_grey))
             images[key] = {n: r.image_grey for n, r in zip(names, rendered)}
-            mc[key] = {n: r.mc for n, r in zip(names, rendered)}
+            # no Monte Carlo at all (every pixel in focus): 0 noise, target met
+            mc[key] = {n: {**(r.mc or {"mc_rms_grey": 0.0, "target_met": True}), "renderer": r.renderer,
+                           "known_fraction": r.known_fraction} for n, r in zip(names, rendered)}
     figures = depth_of_field_dic(scene, images["static"], images["moved"], shift, noise_grey=noise_grey,
                                  subset_size=subset_size, step=step, seed=seed)
     for name in scene.specs:
@@ -220,8 +224,12 @@ def _render_text(metrics: dict) -> str:
     if metrics.get("spp") != "adaptive":
         return f"{metrics['spp']} spp"
     rms = [r["mc_rms_grey"] for c in metrics["cameras"].values() for r in c.get("render_mc", {}).values()]
-    text = (f"adaptive sampling (Monte-Carlo noise target {metrics['mc_target_grey']:g} grey, measured "
-            f"{max(rms):.3f} grey RMS at most)")
+    shares = {name: min(r.get("known_fraction", 0.0) for r in c.get("render_mc", {}).values())
+              for name, c in metrics["cameras"].items()}
+    text = (f"the pixels in focus (blur circle <= 0.1 px) without Monte Carlo (at least "
+            + ", ".join(f"{100 * v:.0f} % of the {k} camera's" for k, v in shares.items())
+            + f"), the blurred rest by adaptive sampling (Monte-Carlo noise target {metrics['mc_target_grey']:g} "
+            f"grey, measured {max(rms):.3f} grey RMS at most over the sampled pixels)")
     # a camera whose renders missed the target says so: its noise floor and MIG carry the extra render noise
     missed = {name: max(r["mc_rms_grey"] for r in c["render_mc"].values())
               for name, c in metrics["cameras"].items()
@@ -238,7 +246,8 @@ def reproduce_depth_of_field(out_dir, *, scale: float = 1.0, object_tilt_deg: fl
                              mc_target_grey: float | None = None) -> dict:
     """Write ``metrics.json``, ``report.md``, ``side_by_side.png`` and ``dic_maps.png`` (tilted vs untilted).
 
-    ``mc_target_grey``: adaptive renders (:mod:`scenes.adaptive`) at that Monte-Carlo noise instead of ``spp``."""
+    ``mc_target_grey``: renders without Monte Carlo where in focus, adaptive at that Monte-Carlo noise elsewhere
+    (:func:`scenes.adaptive.render_views_auto`) instead of ``spp``."""
     import json
     from pathlib import Path
 

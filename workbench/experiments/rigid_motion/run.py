@@ -26,7 +26,8 @@ from measurement.stereo_dic import StereoMatchError, measure_state, reference_sh
 from measurement.stereo_io import write_state_vtk
 from scenes.motion import stage_states_mm
 from workbench.experiments.calibration.run import render_content, mc_summary
-from workbench.experiments.rigid_motion.scenes import load_truth, render_rigid_motion, speckle_render_content
+from workbench.experiments.rigid_motion.scenes import (known_fraction_range, load_truth, render_rigid_motion,
+                                                       speckle_render_content)
 from workbench.manifest import save_figure
 from workbench.store import dataset_record, stored_render
 from workbench.points_with_truth import Alignment, write_alignment, write_points_readme, write_points_with_truth
@@ -195,7 +196,7 @@ def reproduce_rigid_motion(out_dir: str | Path, *, scale: float = 1.0, calib: st
     rig, rig_text = _rig_for(calib, scale, out_dir, seed, store, mc_target_grey)  # a bad file: refused first
     wanted = stage_states_mm() if states is None else np.asarray(states, dtype=float)
     content = {"experiment": "rigid-motion", "rig": "paper", "scale": float(scale), "lens": lens, "seed": seed,
-               **render_content(spp, mc_target_grey), **speckle_render_content(renderer, lens),
+               **render_content(spp, mc_target_grey), **speckle_render_content(renderer, lens, mc_target_grey),
                "read_noise_grey": 1.0, "states_mm": [float(v) for v in wanted]}
     images, _ = stored_render("rigid-motion", content, lambda folder: render_rigid_motion(
         "paper", folder, scale=scale, lens=lens, spp=spp, seed=seed, states=wanted, progress=progress,
@@ -218,6 +219,7 @@ def reproduce_rigid_motion(out_dir: str | Path, *, scale: float = 1.0, calib: st
                "images_dataset": dataset_record("rigid-motion", content, images), "lens": lens, "scale": scale,
                **render_content(spp, mc_target_grey), "render_mc": mc_summary(truth.info["render"].get("mc", [])),
                "speckle_renderers": truth.info["render"].get("renderers", {}),
+               "speckle_known_fraction": known_fraction_range(truth.info["render"].get("images", [])),
                "subset_px": subset_size, "step_px": step,
                "roi_px": list(roi), "points": int(shape.x.size), "reference_points_triangulated": int(ok0.sum()),
                "reference_3d_error_um": {"unaligned_rms": float(1e3 * np.sqrt(np.mean(unaligned ** 2))),

@@ -328,19 +328,22 @@ def resolve_rig(rig: StereoRig | str, scale: float) -> tuple[StereoRig, float | 
     return rig, None
 
 
-#: Renderers of speckle states: "auto" (the deterministic pinhole renderer, :mod:`scenes.exact_render`, where a
-#: view allows it; Mitsuba otherwise), "mitsuba" (Monte Carlo: fixed spp or adaptive).
+#: Renderers of speckle states: "auto" (the deterministic renderer, :mod:`scenes.exact_render`, where a view
+#: allows it: a pinhole, or a thin lens' in-focus pixels with adaptive Mitsuba for the rest; Mitsuba otherwise), "mitsuba" (Monte Carlo: fixed spp or adaptive).
 SPECKLE_RENDERERS = ("auto", "mitsuba")
 
 
-def speckle_render_content(renderer: str, lens: str) -> dict:
+def speckle_render_content(renderer: str, lens: str, mc_target_grey: float | None = None) -> dict:
     """How the speckle renderer enters a stored dataset's content hash: nothing where every image is Mitsuba's
-    (``"mitsuba"``, or a thin lens, which ``"auto"`` leaves to Mitsuba), so those datasets keep their hashes."""
+    (``"mitsuba"``, or a thin lens at a fixed spp, which ``"auto"`` leaves to Mitsuba), so those datasets keep
+    their hashes."""
     from workbench.scenario import SPECKLE_RENDERER_TAGS
 
     if renderer not in SPECKLE_RENDERERS:
         raise ValueError(f"speckle renderer {renderer!r}: choose one of {', '.join(SPECKLE_RENDERERS)}")
-    return {} if renderer == "mitsuba" or lens != "pinhole" else {"speckle_renderer": SPECKLE_RENDERER_TAGS[renderer]}
+    if renderer == "mitsuba" or (lens != "pinhole" and mc_target_grey is None):
+        return {}
+    return {"speckle_renderer": SPECKLE_RENDERER_TAGS[renderer]}
 
 
 def render_stereo_states(truth, surfaces_of_state, n_states: int, out_dir: Path, noise: SensorNoise, *, spp: int,
@@ -356,13 +359,15 @@ def render_stereo_states(truth, surfaces_of_state, n_states: int, out_dir: Path,
     the scene radiance of state k changes (:meth:`scenes.illumination.IlluminationChange.apply`) before the
     sensor noise. ``renderer`` (:data:`SPECKLE_RENDERERS`): ``"auto"`` renders both cameras of a state with
     :func:`scenes.exact_render.render_view_exact` (exact coverage, Gauss-Legendre quadrature of the speckle: no
-    Monte-Carlo noise) where it can (a pinhole, no occlusion) and with Mitsuba otherwise (a thin lens: defocus).
-    Mitsuba renders at ``spp``, or, with ``mc_target_grey``, both cameras of a state from one scene with
-    :mod:`scenes.adaptive` at that Monte-Carlo noise; each such image's measured noise and sample counts are
-    appended to ``mc_log``. ``render_log`` gets one entry per image: which renderer made it, and why Mitsuba did
-    where ``"auto"`` fell back. Returns the file names per state.
+    Monte-Carlo noise) where it can (a pinhole, no occlusion); with ``mc_target_grey`` also through a thin lens,
+    whose in-focus pixels it makes and whose blurred rest Mitsuba's adaptive renderer traces
+    (:func:`scenes.adaptive.render_views_auto`). Mitsuba renders at ``spp``, or, with ``mc_target_grey``, both
+    cameras of a state from one scene with :mod:`scenes.adaptive` at that Monte-Carlo noise; each such image's
+    measured noise and sample counts are appended to ``mc_log``. ``render_log`` gets one entry per image: which
+    renderer made it (with the share of pixels made without Monte Carlo), and why Mitsuba did where ``"auto"``
+    fell back. Returns the file names per state.
     """
-    from scenes.exact_render import NotExactError, render_view_exact
+    from scenes.exact_render import RENDERER_IN_FOCUS, NotExactError, render_view_exact
 
     if renderer not in SPECKLE_RENDERERS:
         raise ValueError(f"speckle renderer {renderer!r}: choose one of {', '.join(SPECKLE_RENDERERS)}")
@@ -372,39 +377,59 @@ def render_stereo_states(truth, surfaces_of_state, n_states: int, out_dir: Path,
         surfaces = surfaces_of_state(k)
         names = {}
         poses = {side: drifted_pose(*truth.camera_poses[side], drift, k, camera=side) for side in SIDES}
-        exact, fallback = None, None
-        if renderer == "auto":
+        views = [(truth.specs[side], poses[side]) for side in SIDES]
+        auto, exact, fallback = None, None, None
+        if renderer == "auto" and mc_target_grey is not None:
+            from scenes.adaptive import AdaptiveSettings, render_views_auto
+            auto = render_views_auto(views, surfaces, seed=seed * 100003 + 2 * k, exposure_grey=EXPOSURE_GREY[8],
+                                     settings=AdaptiveSettings(target_mc_grey=mc_target_grey))
+        elif renderer == "auto":
             try:
-                exact = [render_view_exact(truth.specs[side], *poses[side], surfaces, exposure_grey=EXPOSURE_GREY[8])
-                         for side in SIDES]
+                exact = [render_view_exact(spec, *pose, surfaces, exposure_grey=EXPOSURE_GREY[8]) for spec, pose in views]
             except NotExactError as err:
-                fallback = str(err)
+                fallback = str(err)     # at a fixed spp Mitsuba renders the whole view
         adaptive = None
-        if exact is None and mc_target_grey is not None:
+        if auto is None and exact is None and mc_target_grey is not None:
             from scenes.adaptive import AdaptiveSettings, render_views_adaptive
-            adaptive = render_views_adaptive([(truth.specs[side], poses[side]) for side in SIDES], surfaces,
-                                             seed=seed * 100003 + 2 * k, exposure_grey=EXPOSURE_GREY[8],
+            adaptive = render_views_adaptive(views, surfaces, seed=seed * 100003 + 2 * k,
+                                             exposure_grey=EXPOSURE_GREY[8],
                                              settings=AdaptiveSettings(target_mc_grey=mc_target_grey))
         for c, side in enumerate(SIDES):
             image_seed = seed * 100003 + 2 * k + c
-            if exact is not None:
-                rendered, made_by = exact[c][0], exact[c][1]["renderer"]
+            entry, mc = {}, None
+            if auto is not None:
+                rendered, made_by, mc = auto[c].image_grey, auto[c].renderer, auto[c].mc
+                if auto[c].fallback:
+                    entry["fallback"] = auto[c].fallback
+                elif made_by == RENDERER_IN_FOCUS:
+                    entry["known_fraction"] = round(auto[c].known_fraction, 6)
+            elif exact is not None:
+                rendered, made_by = exact[c]
+                made_by = made_by["renderer"]
             elif adaptive is None:
                 rendered = render_view(truth.specs[side], *poses[side], surfaces, spp=spp, seed=image_seed,
                                        exposure_grey=EXPOSURE_GREY[8]).image_grey
                 made_by = "mitsuba"
             else:
-                rendered, made_by = adaptive[c].image_grey, "mitsuba-adaptive"
-                if mc_log is not None:
-                    mc_log.append({"state": k, "camera": side, **adaptive[c].mc})
+                rendered, made_by, mc = adaptive[c].image_grey, "mitsuba-adaptive", adaptive[c].mc
+            if fallback and renderer == "auto":
+                entry["fallback"] = fallback
+            if mc is not None and mc_log is not None:
+                mc_log.append({"state": k, "camera": side, **mc})
             if render_log is not None:
-                render_log.append({"state": k, "camera": side, "renderer": made_by,
-                                   **({"fallback": fallback} if fallback else {})})
+                render_log.append({"state": k, "camera": side, "renderer": made_by, **entry})
             image = rendered if illumination is None else illumination.apply(rendered, k)
             names[side] = f"{side}_{k:0{digits}d}.png"
             atomic_write_image(out_dir / names[side], to_image_dtype(noise.apply(image, seed=image_seed), 8))
         files.append(names)
     return files
+
+
+def known_fraction_range(render_images: list[dict]) -> list[float] | None:
+    """[min, max] share of pixels made without Monte Carlo over the thin-lens images of ``render_log`` entries
+    (None when no image was made that way)."""
+    shares = [float(r["known_fraction"]) for r in render_images if "known_fraction" in r]
+    return [min(shares), max(shares)] if shares else None
 
 
 def render_info(rig: StereoRig, rig_scale, spp: int, seed: int, noise_grey: float,
