@@ -2,8 +2,10 @@
 
 Renders ``--views`` random stereo views of the paper's board at full resolution (exact renderer, 1 grey read
 noise, 8 bit), then times :func:`measurement.calibration.detection.detect_checkerboard` per image with the search
-pyramid (640 px copy first) and with the 1280 px copy alone (the previous default), both refined at full size by
-saddle points, and scores every corner against the truth side's projection. Both sides run in this one process.
+pyramid (640 px copy first) and with the 1280 px copy alone (the previous default), both refined at full size
+(OpenCV sub-pixel), and the pyramid followed by the saddle-model fit the calibration runs
+(:func:`~measurement.calibration.detection.refine_corners_saddle`), and scores every corner against the truth
+side's projection. All run in this one process.
 
     .venv/bin/python benchmarks/detection_speed.py [--views 6] [--seed 0]
 """
@@ -41,12 +43,16 @@ def main() -> None:
             truths.append(project_points(spec, *pose, board.true_corners_board_mm() @ np.asarray(R_wb).T + t_wb))
     print(f"machine: {platform.platform()}; {len(images)} images of {images[0].shape[1]} x {images[0].shape[0]} px")
     detection.detect_checkerboard(images[0], (11, 8))                     # warm-up
-    for label, sides in (("pyramid 640 -> 1280", (640, 1280)), ("1280 px copy only", ())):
+    pyramid = detection.DETECT_SEARCH_SIDES_PX
+    for label, sides, saddle in (("pyramid 640 -> 1280", pyramid, False), ("1280 px copy only", (), False),
+                                 ("pyramid + saddle fit", pyramid, True)):
         detection.DETECT_SEARCH_SIDES_PX = sides
         seconds, errors, missed = [], [], 0
         for image, truth in zip(images, truths):
             t0 = time.perf_counter()
             found = detection.detect_checkerboard(image, (11, 8))
+            if saddle and found is not None:       # what the calibration runs (refine_corners=True)
+                found = detection.refine_corners_saddle(image, found, (11, 8))
             seconds.append(time.perf_counter() - t0)
             if found is None:
                 missed += 1

@@ -199,6 +199,10 @@ def board_points_mm(pattern_size: tuple[int, int], square_mm: float) -> np.ndarr
     return np.stack([jj.ravel() * square_mm, ii.ravel() * square_mm, np.zeros(nx * ny)], axis=1)
 
 
+#: Smallest blur (sigma, px) of the saddle model: a sharper fit is a degenerate step.
+SADDLE_MIN_BLUR_PX = 0.05
+
+
 def refine_corners_saddle(image: np.ndarray, corners: np.ndarray, pattern_size: tuple[int, int] = (11, 8),
                           half_size_px: float | None = None) -> np.ndarray:
     """Refine ordered checkerboard corners by fitting a blurred saddle model to the pixels around each one.
@@ -249,16 +253,39 @@ def refine_corners_saddle(image: np.ndarray, corners: np.ndarray, pattern_size: 
             sign = np.sign(np.mean(obs * np.sign(-np.sin(t1) * (uu - c0[0]) + np.cos(t1) * (vv - c0[1]))
                                    * np.sign(-np.sin(t2) * (uu - c0[0]) + np.cos(t2) * (vv - c0[1]))))
 
+            # blur s = S_MIN + q^2 keeps s >= S_MIN without bounds, so MINPACK's Levenberg-Marquardt can fit it (a
+            # third of the bounded trust-region solver's time per corner), with an analytic Jacobian
             def residual(p):
-                cu, cv, a1, a2, gain, offset, s = p
+                cu, cv, a1, a2, gain, offset, q = p
                 d1 = -np.sin(a1) * (uu - cu) + np.cos(a1) * (vv - cv)
                 d2 = -np.sin(a2) * (uu - cu) + np.cos(a2) * (vv - cv)
-                k = 1.0 / (np.sqrt(2.0) * s)
+                k = 1.0 / (np.sqrt(2.0) * (SADDLE_MIN_BLUR_PX + q * q))
                 return offset + gain * erf(d1 * k) * erf(d2 * k) - obs
 
-            p0 = [c0[0], c0[1], t1, t2, sign * 0.5 * (obs.max() - obs.min()), obs.mean(), 0.6]
+            def jacobian(p):
+                cu, cv, a1, a2, gain, offset, q = p
+                s = SADDLE_MIN_BLUR_PX + q * q
+                s1, c1, s2, c2 = np.sin(a1), np.cos(a1), np.sin(a2), np.cos(a2)
+                du, dv = uu - cu, vv - cv
+                d1, d2 = -s1 * du + c1 * dv, -s2 * du + c2 * dv
+                k = 1.0 / (np.sqrt(2.0) * s)
+                e1, e2 = erf(d1 * k), erf(d2 * k)
+                g1 = (2.0 / np.sqrt(np.pi)) * k * np.exp(-(d1 * k) ** 2)       # d erf(d1 k) / d d1
+                g2 = (2.0 / np.sqrt(np.pi)) * k * np.exp(-(d2 * k) ** 2)
+                J = np.empty((len(du), 7))
+                J[:, 0] = gain * (g1 * s1 * e2 + e1 * g2 * s2)
+                J[:, 1] = -gain * (g1 * c1 * e2 + e1 * g2 * c2)
+                J[:, 2] = gain * g1 * (-c1 * du - s1 * dv) * e2
+                J[:, 3] = gain * e1 * g2 * (-c2 * du - s2 * dv)
+                J[:, 4] = e1 * e2
+                J[:, 5] = 1.0
+                J[:, 6] = -gain * (g1 * d1 * e2 + e1 * g2 * d2) / s * (2.0 * q)
+                return J
+
+            p0 = [c0[0], c0[1], t1, t2, sign * 0.5 * (obs.max() - obs.min()), obs.mean(),
+                  np.sqrt(0.6 - SADDLE_MIN_BLUR_PX)]
             try:
-                res = least_squares(residual, p0, bounds=([-np.inf] * 6 + [0.05], [np.inf] * 7), x_scale="jac")
+                res = least_squares(residual, p0, jac=jacobian, method="lm", x_scale="jac")
             except ValueError:
                 continue
             # A fit that stays well inside its window (a quarter of its radius, at least 1 px) is kept. A fixed

@@ -77,7 +77,7 @@ def detect_pairs(left_files, right_files, pattern_size=(11, 8), progress: bool =
     """Detect the board in every left/right pair (paired in the given order).
 
     ``refine``: also fit a blurred saddle model around every corner (:func:`refine_corners_saddle`; ~3x lower
-    corner error than OpenCV's on full-resolution renders, ~5 s per 5 MP image). ``min_views``: fewest usable
+    corner error than OpenCV's on full-resolution renders, ~0.15 s per 5 MP board). ``min_views``: fewest usable
     pairs accepted (calibration needs 3; validation sets may be smaller). ``target``: a ChArUco or dot-grid spec
     instead of the checkerboard of ``pattern_size`` (ChArUco corners not seen are NaN rows).
     """
