@@ -72,3 +72,25 @@ def test_the_study_writes_one_html_report_with_fig6_and_the_study_figures(tmp_pa
     assert "Fig 6: paper vs simulated causes" in html and "study figure: mean error" in html
     assert "c3R1ZHk=" in html and "study line: 5 cases" in html
     assert sorted(p.name for p in tmp_path.glob("*.html")) == ["report.html"]
+
+
+def test_the_report_says_whether_the_explanation_changes_at_another_resolution(tmp_path):
+    """Against the same study's result the explanation "does not change" (0 cases change); against a result in
+    which the "roll" case reproduced Fig 6 (flipped here by hand) it "changes" and names that case."""
+    pm, ps = paper_at(STAGE)
+    records = [_record(name, pm * (1.3 if name != "scale" else 1.0), ps, 0.04)
+               for name in ("perfect world", "scale", "roll", "both", "bent")]
+    for name in "abc":
+        (tmp_path / name).mkdir()
+    same = write_fig6_report(_study(), tmp_path / "a", records, {})
+    write_fig6_report(_study(), tmp_path / "b", records, {}, compare=(same, 1.0))
+    text = (tmp_path / "b" / "fig6_causes.md").read_text()
+    assert "**The explanation does not change**: 0 of 5 cases change their verdict" in text
+    flipped = json.loads(json.dumps(same))
+    roll = next(s for s in flipped["summaries"] if s["case"] == "roll")
+    assert roll["matches_paper"] is False
+    roll["matches_paper"] = True
+    write_fig6_report(_study(), tmp_path / "c", records, {}, compare=(flipped, 1.0))
+    text = (tmp_path / "c" / "fig6_causes.md").read_text()
+    assert "**The explanation changes**: 1 of 5 cases change their verdict (roll)" in text
+    assert "(scale 0.25 here, 1 in the other study)" in text

@@ -87,6 +87,9 @@ def add_parser(sub) -> None:
     f6 = repsub.add_parser("fig6-causes", help="which simulated error sources explain the paper's Fig 6 error growth "
                                                 "(a study on Dask, resumable)")
     f6.add_argument("--study", type=Path, default=None, help="study file (default studies/fig6_causes.toml)")
+    f6.add_argument("--compare", type=Path, default=None, metavar="DIR",
+                    help="the output folder of the same study at another resolution (its fig6_causes.json and "
+                         "study.toml): the report says whether the explanation changes")
     f6.add_argument("--scheduler", default=None, help="address of a running Dask scheduler; default a LocalCluster")
     f6.add_argument("--workers", type=positive_int_arg, default=2, help="LocalCluster process workers, default 2")
     f6.add_argument("--store", type=Path, default=None,
@@ -256,10 +259,18 @@ def fig6_causes_command(args) -> int:
             "perfect world" not in [c.name for c in study.cases]:
         raise ValueError(f"{path}: the Fig 6 study needs experiment = \"rigid_motion\", mode = \"cases\" and a "
                          "case named \"perfect world\" (the baseline)")
+    compare = None
+    if getattr(args, "compare", None) is not None:       # read before the (long) study: a bad folder fails now
+        import json
+        for name in ("fig6_causes.json", "study.toml"):
+            if not (args.compare / name).is_file():
+                raise ValueError(f"--compare {args.compare}: no {name} there (the output folder of a fig6-causes run)")
+        compare = (json.loads((args.compare / "fig6_causes.json").read_text()),
+                   float(load_study(args.compare / "study.toml").scenario.rig.scale))
     summary, lines, versions = run_study(args, study)
     outputs = write_study_outputs(study, args.out, summary.records, lines, versions, html=False)
     result = write_fig6_report(study, args.out, summary.records, versions, outputs["figures"],
-                               lines + outputs["summary"])
+                               lines + outputs["summary"], compare=compare)
     print("\n".join(lines))
     for v in result["single_causes"]:
         print(f"  {v['case']}: {v['verdict']}")

@@ -185,6 +185,44 @@ def meaning(parameter: str, value) -> str:
     return f"{parameter} = {value}"
 
 
+def compare_explanations(result: dict, scale: float, other: dict, other_scale: float) -> list[str]:
+    """Markdown lines: does the explanation change between this study and ``other`` (the same cases at another
+    resolution, its ``fig6_causes.json``)? Per case the verdict (matches Fig 6, consistent with the paper's
+    calibration) and the 10 mm mean and std at both scales; then the single-cause verdicts that differ and the
+    best explanations of each."""
+    mine = {s["case"]: s for s in result["summaries"]}
+    theirs = {s["case"]: s for s in other["summaries"]}
+    common = [c for c in mine if c in theirs]
+
+    def verdict(s):
+        return ("matches" if s["matches_paper"] else "no") + ("" if s["consistent_with_paper_calibration"] else
+                                                              ", calibration NO")
+
+    changed = [c for c in common if verdict(mine[c]) != verdict(theirs[c])]
+    lines = [f"## Does the explanation change with resolution? (scale {scale:g} here, {other_scale:g} in the "
+             "other study)", "",
+             f"| case | Fig 6 at scale {other_scale:g} | at scale {scale:g} | mean / std at 10 mm, scale "
+             f"{other_scale:g} (µm) | at scale {scale:g} (µm) |", "|---|---|---|---|---|"]
+    for c in common:
+        a, b = theirs[c], mine[c]
+        lines.append(f"| {c} | {verdict(a)} | {verdict(b)} | {a['mean_um'][-1]:.1f} / {a['std_um'][-1]:.1f} | "
+                     f"{b['mean_um'][-1]:.1f} / {b['std_um'][-1]:.1f} |")
+    other_verdicts = {v["case"]: v["verdict"] for v in other.get("single_causes", [])}
+    differ = [v for v in result["single_causes"] if other_verdicts.get(v["case"], v["verdict"]) != v["verdict"]]
+    same_best = result["best"][:1] == other["best"][:1]
+    lines += ["", f"Best explanation at scale {other_scale:g}: {', '.join(other['best'][:3])}; at scale {scale:g}: "
+              f"{', '.join(result['best'][:3])}.", "",
+              ("**The explanation does not change**" if not changed and same_best else
+               "**The explanation changes**") +
+              f": {len(changed)} of {len(common)} cases change their verdict"
+              + (f" ({', '.join(changed)})" if changed else "")
+              + f"; {len(differ)} single-cause verdicts read differently (their numbers move with the noise floor)."]
+    for v in differ:
+        lines += [f"- **{v['case']}** at scale {scale:g}: {v['verdict']}.",
+                  f"  at scale {other_scale:g}: {other_verdicts[v['case']]}."]
+    return lines
+
+
 def fig6_png(ds, summaries: list[dict], best: list[str]) -> str:
     """Fig 6 (a) mean error and (b) std vs travel: the paper, the perfect world and the best explanations."""
     import matplotlib
@@ -212,7 +250,9 @@ def fig6_png(ds, summaries: list[dict], best: list[str]) -> str:
         ax.set_ylabel(label)
         ax.grid(alpha=0.3)
         ax.legend(fontsize=7)
-    fig.suptitle("The paper's Fig 6 and the simulated causes that reproduce it (quarter-resolution renders)", fontsize=9)
+    scale = float(ds.attrs.get("rig_scale", float("nan"))) if hasattr(ds, "attrs") else float("nan")
+    fig.suptitle("The paper's Fig 6 and the simulated causes that reproduce it"
+                 + (f" (renders at scale {scale:g})" if np.isfinite(scale) else ""), fontsize=9)
     fig.tight_layout()
     png = png_base64(fig)
     plt.close(fig)
@@ -220,15 +260,18 @@ def fig6_png(ds, summaries: list[dict], best: list[str]) -> str:
 
 
 def write_fig6_report(study: Study, out_dir: Path, records: list[dict], versions: dict,
-                      study_figures=(), study_lines=()) -> dict:
+                      study_figures=(), study_lines=(), compare: tuple[dict, float] | None = None) -> dict:
     """``fig6_causes.json``, ``fig6_causes.md`` and the one ``report.html``: Fig 6 side by side, the verdicts, the
     table, then the study's own figures (``study_figures``, from
-    :func:`workbench.studies.report.write_study_outputs` with ``html=False``) and summary lines."""
+    :func:`workbench.studies.report.write_study_outputs` with ``html=False``) and summary lines. ``compare``:
+    another resolution's ``fig6_causes.json`` and its scale, for a section on whether the explanation changes
+    (:func:`compare_explanations`)."""
     import base64
 
     from workbench.studies.report import gather, html_table, write_html
 
     ds = gather(study, records, versions)
+    ds.attrs["rig_scale"] = float(study.scenario.rig.scale)
     summaries = case_summaries(ds, study)
     add_calibration_consistency(summaries, study.scenario.rig.scale)
     verdicts = single_cause_verdicts(summaries)
@@ -283,13 +326,19 @@ def write_fig6_report(study: Study, out_dir: Path, records: list[dict], versions
                   "resolution." for s in curves_only]
     if failed:
         lines += ["", "## Cases that failed", ""] + [f"- {r.get('labels', {}).get('case')}: {r.get('error')}" for r in failed]
-    text = "\n".join(lines) + "\n"
-    atomic_write_text(out_dir / "fig6_causes.md", text)
     result = {"summaries": summaries, "single_causes": verdicts, "matching": [s["case"] for s in matching],
               "curves_only": [s["case"] for s in curves_only],
-              "best": best, "paper_at_1_5_10_mm": {"mean_um": pm.tolist(), "std_um": ps.tolist()}}
+              "best": best, "paper_at_1_5_10_mm": {"mean_um": pm.tolist(), "std_um": ps.tolist()},
+              "scale": float(study.scenario.rig.scale)}
+    comparison = []
+    if compare is not None:
+        comparison = compare_explanations(result, float(study.scenario.rig.scale), *compare)
+        lines += [""] + comparison
+    text = "\n".join(lines) + "\n"
+    atomic_write_text(out_dir / "fig6_causes.md", text)
     atomic_write_text(out_dir / "fig6_causes.json", json.dumps(result, indent=1))
     write_html(out_dir / "report.html", study, ds, [("Fig 6: paper vs simulated causes", png), *study_figures],
-               [f"best explanation: {', '.join(best[:3])}"] + [v["verdict"] for v in verdicts] + list(study_lines),
+               [f"best explanation: {', '.join(best[:3])}"] + [v["verdict"] for v in verdicts]
+               + [line for line in comparison if line.startswith("**")] + list(study_lines),
                [html_table(header, rows)])
     return result
