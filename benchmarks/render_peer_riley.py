@@ -30,6 +30,9 @@ package versions and writes it to ``--out``.
     .venv-peers/bin/python benchmarks/render_peer_riley.py [--scale 1.0] [--spp 64] [--repeat 2]
         [--out reports/render_peer_riley/benchmark.txt]
 
+Then, at equal *measured* render error (:func:`equal_error_comparison`): our deterministic renderer (no Monte
+Carlo) against riley at the coarsest sub-pixel grid whose error against its own converged image is no larger.
+
 ``--check`` renders at scale 0.1 with 4 spp and prints the table only (a quick smoke run);
 :func:`render_pair_both` is what the test calls.
 """
@@ -263,6 +266,76 @@ def render_pair_both(scale: float = 1.0, spp: int = 64, repeat: int = 1, seed: i
     return {"scene": scene, "rows": rows}
 
 
+def equal_error_comparison(scale: float = 1.0, seed: int = 0, ref_spp: int = 2048, window: int = 300,
+                           riley_ns=(1, 2, 3, 4, 6, 8), riley_ref_n: int = 24) -> dict:
+    """Time per stereo pair at equal *measured* render error: our deterministic renderer
+    (:func:`scenes.exact_render.render_view_exact`: exact coverage, Gauss-Legendre quadrature of the speckle)
+    against riley at the coarsest sub-pixel grid whose error is no larger.
+
+    Each renderer's error is measured against its own converged image of the same plate (the two model
+    different cameras: ours the tilted sensor, riley a centred untilted pinhole): ours against the mean of two
+    ``ref_spp``-spp Mitsuba renders over a ``window``-px square at the image centre, net of that reference's own
+    Monte-Carlo noise; riley against its ``riley_ref_n`` x ``riley_ref_n`` grid render over the same window.
+    Returns ``{"ours": {...}, "riley": [{n, seconds, error_grey: [left, right]}, ...], "equal": {...}}``.
+    """
+    from scenes.exact_render import render_view_exact
+
+    scene = build_scene(scale, seed)
+    mesh = riley_mesh(scene)
+    h, w = scene.shape
+    half = window // 2
+    y0, x0 = max(0, h // 2 - half), max(0, w // 2 - half)
+    win = (slice(y0, y0 + window), slice(x0, x0 + window))
+
+    def ours_pair(_k):
+        return [render_view_exact(scene.specs[s], *scene.poses[s], [scene.surface], exposure_grey=EXPOSURE_GREY)[0]
+                for s in SIDES]
+
+    t_ours, img_ours = _best_of(ours_pair, 2)
+    ours_err = []
+    for s, img in zip(SIDES, img_ours):
+        a, b = (render_view(scene.specs[s], *scene.poses[s], [scene.surface], spp=ref_spp, seed=seed + 11 + k,
+                            exposure_grey=EXPOSURE_GREY, crop=(x0, y0, window, window)).image_grey for k in (0, 1))
+        ref, noise = 0.5 * (a + b), 0.5 * (a - b)
+        e2 = float(np.mean((img[win] - ref) ** 2)) - float(np.mean(noise ** 2))
+        ours_err.append(math.sqrt(max(e2, 0.0)))
+    reference = render_riley(scene, mesh, riley_ref_n ** 2)
+    riley_rows = []
+    for n in riley_ns:
+        t, imgs = _best_of(lambda k: render_riley(scene, mesh, n * n), 1)
+        err = [float(np.sqrt(np.mean((img[win] - ref[win]) ** 2))) for img, ref in zip(imgs, reference)]
+        riley_rows.append({"n": n, "seconds": t, "error_grey": err})
+    target = max(ours_err)
+    equal = next((r for r in riley_rows if max(r["error_grey"]) <= target), None)
+    return {"scene": scene, "ours": {"seconds": t_ours, "error_grey": ours_err}, "riley": riley_rows,
+            "equal": equal, "ref_spp": ref_spp, "riley_ref_n": riley_ref_n, "window": window, "shape": (h, w)}
+
+
+def format_equal_error(result: dict) -> str:
+    h, w = result["shape"]
+    o = result["ours"]
+    lines = ["", f"At equal measured render error ({w} x {h} px per camera; error = RMS over a {result['window']} px "
+             "square at the image centre against each renderer's own converged image: ours vs 2 x "
+             f"{result['ref_spp']} spp Mitsuba net of its MC noise, riley vs its {result['riley_ref_n']} x "
+             f"{result['riley_ref_n']} grid):",
+             f"{'renderer':44s} {'s / stereo pair':>16s} {'error left / right (grey)':>28s}",
+             f"{'ours, deterministic (exact coverage + 6x6 GL)':44s} {o['seconds']:>16.3f} "
+             f"{o['error_grey'][0]:>13.4f} / {o['error_grey'][1]:.4f}"]
+    for r in result["riley"]:
+        lines.append(f"{'riley, ' + str(r['n']) + ' x ' + str(r['n']) + ' grid':44s} {r['seconds']:>16.3f} "
+                     f"{r['error_grey'][0]:>13.4f} / {r['error_grey'][1]:.4f}")
+    e = result["equal"]
+    if e is None:
+        lines.append(f"no riley grid up to {result['riley'][-1]['n']} x {result['riley'][-1]['n']} reaches our error "
+                     f"({max(o['error_grey']):.4f} grey): ours is faster than every riley time above at a lower error, "
+                     f"at least {result['riley'][-1]['seconds'] / o['seconds']:.2f}x")
+    else:
+        lines.append(f"riley's coarsest grid at or below our error ({max(o['error_grey']):.4f} grey): {e['n']} x {e['n']}, "
+                     f"{e['seconds']:.3f} s per pair; ours {o['seconds']:.3f} s: ours is "
+                     f"{e['seconds'] / o['seconds']:.2f}x faster at equal error")
+    return "\n".join(lines) + "\n"
+
+
 def _version(name: str) -> str:
     try:
         return importlib.metadata.version(name)
@@ -306,11 +379,16 @@ def main(argv=None) -> None:
                     help="also time our adaptive renderer at this Monte-Carlo noise target (0: skip)")
     ap.add_argument("--out", default="reports/render_peer_riley/benchmark.txt")
     ap.add_argument("--check", action="store_true", help="quick smoke run: scale 0.1, 4 spp, 1 repeat, no file")
+    ap.add_argument("--no-equal-error", action="store_true",
+                    help="skip the comparison at equal measured render error (equal_error_comparison)")
     args = ap.parse_args(argv)
     if args.check:
         args.scale, args.spp, args.repeat = 0.1, 4, 1
     result = render_pair_both(args.scale, args.spp, args.repeat, mc_target_grey=args.mc_target_grey or None)
     table = format_table(result, args.spp, args.repeat)
+    if not args.no_equal_error:
+        table += format_equal_error(equal_error_comparison(args.scale, ref_spp=64 if args.check else 2048,
+                                                           window=40 if args.check else 300))
     print(table, end="")
     if not args.check:
         out = Path(args.out)
