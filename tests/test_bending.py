@@ -199,3 +199,29 @@ def test_cli_exits_non_zero_when_no_state_was_measured(tmp_path, monkeypatch, ca
     monkeypatch.setattr(bending, "reproduce_bending", nothing_measured)
     assert main(["reproduce", "bending", "--out", str(tmp_path)]) == 1
     assert "skipped (left_01.png: too few features)" in capsys.readouterr().out
+
+
+def test_the_sampled_peak_strain_needs_no_images_and_sets_the_scale_law_goal(experiment):
+    """``sampled_peak_strain_ue`` (the ROI and POI grid alone, no DIC) finds the same peak exact strain as the run
+    found on the points it measured, for every load (1e-6 relative); the scale-law goal is 5 % times the ratio of
+    the full-resolution points' peak to this run's, and the goal check uses it instead of the plain 5 %."""
+    from workbench.experiments.bending.report import GOALS, goal_check, strain_goal
+    from workbench.experiments.bending.run import sampled_peak_strain_ue, strain_goal_scale_law
+    from workbench.experiments.bending.scenes import load_bending_truth
+
+    _, m = experiment
+    truth = load_bending_truth(m["images"])
+    for row in m["states"]:
+        k = int(np.argmin(np.abs(truth.loads_N - row["load_N"])))
+        assert sampled_peak_strain_ue(truth, 21, 3, k) == pytest.approx(row["peak_truth_strain_ue"], rel=1e-6)
+    law = strain_goal_scale_law("scheimpflug", "thin", SCALE, truth.loads_N, 21, 3, 0,
+                                m["states"][-1]["peak_truth_strain_ue"], len(LOADS) - 1)
+    assert law["peak_full_resolution_ue"] > law["peak_ue"]        # the full-resolution points reach nearer the edge
+    assert law["goal_percent_of_peak"] == pytest.approx(GOALS["strain_percent_of_peak"] * law["peak_full_resolution_ue"]
+                                                        / law["peak_ue"])
+    row = dict(m["states"][-1], load_N=GOALS["load_N"])
+    row["strain_rmse_vs_filtered_percent_of_peak"] = 0.5 * (GOALS["strain_percent_of_peak"] + law["goal_percent_of_peak"])
+    plain = {"states": [row]}
+    assert strain_goal(plain) == GOALS["strain_percent_of_peak"] and not goal_check(plain)["strain_percent_of_peak"][1]
+    scaled = {"states": [row], "strain_goal_scale_law": law}
+    assert strain_goal(scaled) == law["goal_percent_of_peak"] and goal_check(scaled)["strain_percent_of_peak"][1]
