@@ -94,3 +94,16 @@ def test_the_report_says_whether_the_explanation_changes_at_another_resolution(t
     text = (tmp_path / "c" / "fig6_causes.md").read_text()
     assert "**The explanation changes**: 1 of 5 cases change their verdict (roll)" in text
     assert "(scale 0.25 here, 1 in the other study)" in text
+
+
+def test_a_cause_whose_states_the_instrument_refused_is_ruled_out_as_such(tmp_path):
+    """A single cause whose 10 mm state was not measured (NaN: the instrument refused it) is not extrapolated
+    from NaN: its verdict says which check travel is missing and why it rules the cause out at that size."""
+    pm, ps = paper_at(STAGE)
+    refused_mean = np.where(STAGE >= 4, np.nan, pm)
+    records = [_record("perfect world", 0 * pm, 0 * ps, 0.04), _record("scale", pm, ps, 0.04),
+               _record("roll", refused_mean, ps, 0.04), _record("both", pm, ps, 0.04), _record("bent", pm, ps, 0.04)]
+    result = write_fig6_report(_study(), tmp_path, records, {})
+    roll = next(v for v in result["single_causes"] if v["case"] == "roll")
+    assert roll["verdict"].startswith("not measured at 5, 10 mm: ")
+    assert "ruled out at this size" in roll["verdict"]
