@@ -453,7 +453,7 @@ def _bilinear_window(spec, R, t, bilinear, xy, starts, origin, shape, exposure_g
         sel[first:stop] = 1.0
         covered = accumulate_flat(xy, starts, sel, shape, (x0, y0))
         V = np.asarray(surface.vertices_mm, dtype=float) @ R.T + t
-        tex = np.asarray(surface.texture, dtype=np.float64)
+        tex = np.asarray(surface.texture)
         rows, cols = tex.shape
         uv = np.asarray(surface.uv, dtype=float) * np.array([cols, rows]) - 0.5
         # each triangle's pixel range, from its projected (edge-subdivided) outline
