@@ -329,7 +329,8 @@ def resolve_rig(rig: StereoRig | str, scale: float) -> tuple[StereoRig, float | 
 
 
 #: Renderers of speckle states: "auto" (the deterministic renderer, :mod:`scenes.exact_render`, where a view
-#: allows it: a pinhole, or a thin lens' in-focus pixels with adaptive Mitsuba for the rest; Mitsuba otherwise), "mitsuba" (Monte Carlo: fixed spp or adaptive).
+#: allows it: a pinhole, or a thin lens' in-focus pixels with adaptive Mitsuba for the rest; Mitsuba otherwise),
+#: "mitsuba" (Monte Carlo: fixed spp or adaptive).
 SPECKLE_RENDERERS = ("auto", "mitsuba")
 
 
@@ -404,8 +405,7 @@ def render_stereo_states(truth, surfaces_of_state, n_states: int, out_dir: Path,
                 elif made_by == RENDERER_IN_FOCUS:
                     entry["known_fraction"] = round(auto[c].known_fraction, 6)
             elif exact is not None:
-                rendered, made_by = exact[c]
-                made_by = made_by["renderer"]
+                rendered, made_by = exact[c][0], exact[c][1]["renderer"]
             elif adaptive is None:
                 rendered = render_view(truth.specs[side], *poses[side], surfaces, spp=spp, seed=image_seed,
                                        exposure_grey=EXPOSURE_GREY[8]).image_grey
