@@ -60,6 +60,31 @@ def atomic_writer(path: str | Path, mode: str = "w", *, newline: str | None = No
         raise
 
 
+@contextlib.contextmanager
+def atomic_path(path: str | Path) -> Iterator[Path]:
+    """A temporary path beside ``path`` for a library that writes files by name (netCDF, HDF5); on a clean exit
+    it is fsync'ed and renamed to ``path``, on an error removed (``path`` untouched). Errors name ``path``."""
+    path = Path(path)
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+        os.close(fd)
+    except OSError as err:
+        raise OSError(f"cannot write {path}: {err.strerror or err}") from None
+    try:
+        yield Path(tmp)
+        os.chmod(tmp, _file_mode(path))
+        with open(tmp, "rb+") as handle:
+            os.fsync(handle.fileno())
+        os.replace(tmp, path)
+    except BaseException as err:
+        with contextlib.suppress(OSError):
+            os.unlink(tmp)
+        if isinstance(err, OSError):
+            raise OSError(f"cannot write {path}: {err.strerror or err}") from None
+        raise
+
+
 def _file_mode(path: Path) -> int:
     """The permissions ``path`` keeps (an existing file) or gets (a new one: 0666 minus the umask)."""
     try:

@@ -792,6 +792,8 @@ _ALIASES = {"tetra4": "tetra", "hexahedron8": "hexahedron"}
 #: Cell types whose node order in Exodus II differs from VTK's for the same meshio name (meshio passes them on
 #: unchanged), so they are refused from Exodus files.
 _EXODUS_REORDERED = {"hexahedron20", "hexahedron27"}
+#: The reference volume elements by meshio cell name (public: the surface of a volume mesh is read from them).
+REFERENCE_ELEMENTS = _REFERENCE
 
 
 class FEMeshField(DisplacementField):
@@ -883,7 +885,7 @@ class FEMeshField(DisplacementField):
         if not cells:
             raise ValueError(f"{source}: no volume cells of a supported type ({', '.join(sorted(_REFERENCE))}); "
                              f"the file has: {', '.join(sorted(set(found))) or 'no cells'}")
-        U = _pick_displacement(mesh.point_data, len(mesh.points), displacement_name, source)
+        U = displacement_array(mesh.point_data, len(mesh.points), displacement_name, source)
         s = float(scale_to_mm)
         if not (np.isfinite(s) and s > 0):
             raise ValueError(f"scale_to_mm must be positive, got {scale_to_mm}")
@@ -1050,25 +1052,33 @@ _DISPLACEMENT_NAMES = re.compile(r"^(u|d|disp|displ|displacement|displacements|d
 _COMPONENT = re.compile(r"^(.*?)[_\-:. ]?([xyzXYZ])$")
 
 
-def _pick_displacement(point_data: dict, n_points: int, name, source: str) -> np.ndarray:
-    """The (P, 3) displacement array from meshio point data (see :meth:`FEMeshField.from_file`)."""
+def displacement_field_name(point_data: dict, n_points: int, name, source: str) -> str | tuple[str, str, str]:
+    """The nodal displacement among meshio-style point data: ``name`` checked (a (P, 3) array, or three scalar
+    arrays x, y, z), or, for None, the one vector array named like a displacement (``displacement``, ``disp``,
+    ``u``, ...), the one such scalar triplet (``disp_x``, ``disp_y``, ``disp_z``) or the only (P, 3) array.
+
+    Raises ValueError naming ``source`` and listing the available arrays when it is missing or ambiguous."""
     def describe():
         items = [f"{k} {tuple(np.shape(v))}" for k, v in point_data.items()]
         return ", ".join(items) if items else "none"
 
     def vector(key):
-        a = np.asarray(point_data[key], dtype=float)
-        if a.shape != (n_points, 3):
-            raise ValueError(f"{source}: point data {key!r} has shape {a.shape}, not ({n_points}, 3) displacements; "
+        shape = np.shape(point_data[key])
+        if shape != (n_points, 3):
+            raise ValueError(f"{source}: point data {key!r} has shape {shape}, not ({n_points}, 3) displacements; "
                              f"available point data: {describe()}")
-        return a
+        return key
 
     if isinstance(name, (tuple, list)):
         missing = [k for k in name if k not in point_data]
         if len(name) != 3 or missing:
             raise ValueError(f"{source}: displacement components {tuple(name)} not found (missing {missing}); "
                              f"available point data: {describe()}")
-        return np.stack([np.asarray(point_data[k], dtype=float).reshape(n_points) for k in name], axis=1)
+        for k in name:
+            if np.size(point_data[k]) != n_points:
+                raise ValueError(f"{source}: point data {k!r} has {np.size(point_data[k])} values for {n_points} "
+                                 f"nodes; available point data: {describe()}")
+        return tuple(name)
     if name is not None:
         if name not in point_data:
             raise ValueError(f"{source}: no point data named {name!r}; available point data: {describe()}")
@@ -1086,12 +1096,21 @@ def _pick_displacement(point_data: dict, n_points: int, name, source: str) -> np
     if len(named) == 1:
         return vector(named[0])
     if not named and len(named_triplets) == 1:
-        return _pick_displacement(point_data, n_points, triplets[named_triplets[0]], source)
+        return triplets[named_triplets[0]]
     if not named and not named_triplets and len(vectors) == 1:
         return vector(vectors[0])
     what = "ambiguous" if (len(named) > 1 or len(vectors) > 1 or len(named_triplets) > 1) else "missing"
     raise ValueError(f"{source}: nodal displacement {what}; pass displacement_name= one of the point data arrays "
                      f"(available point data: {describe()})")
+
+
+def displacement_array(point_data: dict, n_points: int, name, source: str) -> np.ndarray:
+    """The (P, 3) nodal displacement :func:`displacement_field_name` names, as float."""
+    key = displacement_field_name(point_data, n_points, name, source)
+    if isinstance(key, tuple):
+        return np.stack([np.asarray(point_data[k], dtype=float).reshape(n_points) for k in key], axis=1)
+    return np.asarray(point_data[key], dtype=float)
+
 
 
 def check_covers_face(field: SupportsDisplacementField, length_mm: float, height_mm: float, n: int = 121,

@@ -1,0 +1,220 @@
+"""Paint on a specimen's surface: a speckle (or a checker) whose size is given in mm on the surface.
+
+A texture lives in a flat ``(u, v)`` plane measured in mm; how the surface maps to that plane is how the paint was
+applied:
+
+* ``"sprayed"``: paint travelling along a direction lands where it meets the surface: ``(u, v)`` is the
+  position projected on the plane across that direction. A surface inclined by ``a`` to the spray receives
+  speckles stretched by ``1 / cos a`` across the slope (stated, per face and overall), and faces turned more than
+  ``max_angle_deg`` away receive none.
+* ``"wrapped"``: a printed sheet wrapped on a developable surface keeps its size: on a cylinder (axis point and
+  direction given, radius measured from the mesh) ``u`` is the arc length ``r theta`` and ``v`` the position along
+  the axis; the seam is put opposite the spray direction (the side the cameras do not see) and the faces across
+  it stay unpainted. On a plane, wrapping is spraying along its normal.
+
+Unpainted faces keep a plain ``base_grey``. Textures are bilinear speckle (:func:`scenes.speckle.speckle_pattern`)
+or a sharp-edged checker (``"nearest"``: rendered exactly by polygon coverage).
+"""
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+
+import numpy as np
+
+PAINT_KINDS = ("speckle", "checker")
+METHODS = ("sprayed", "wrapped")
+#: Largest paint texture (texels), as for the built-in beam: ~320 MB of float32.
+MAX_TEXELS = 80_000_000
+
+
+@dataclass(frozen=True)
+class Paint:
+    """How the surface is painted (module docstring). Lengths in mm on the surface; directions in the specimen frame.
+
+    Parameters
+    ----------
+    kind : "speckle" or "checker"
+    method : "sprayed" or "wrapped"
+    speckle_mm : nominal speckle diameter
+    texel_mm : texture resolution (default: speckle / 5)
+    density, contrast, mean : see :func:`scenes.speckle.speckle_pattern`
+    checker_mm : checker square side
+    direction : paint travel direction (into the surface); default +z (the specimen frame's cameras look along +z)
+    axis_point_mm, axis_direction : the cylinder's axis for ``wrapped`` on a cylinder (None: a plane)
+    max_angle_deg : faces whose outer normal is more than this from ``-direction`` stay unpainted
+    seam_margin_deg : ``wrapped`` cylinder: faces within this of the seam (opposite ``-direction``) stay unpainted
+    base_grey : radiance of unpainted faces, in [0, 1]
+    seed : speckle seed
+    """
+
+    kind: str = "speckle"
+    method: str = "sprayed"
+    speckle_mm: float = 0.17
+    texel_mm: float | None = None
+    density: float = 0.5
+    contrast: float = 0.8
+    mean: float = 0.5
+    checker_mm: float = 2.0
+    direction: tuple = (0.0, 0.0, 1.0)
+    axis_point_mm: tuple | None = None
+    axis_direction: tuple | None = None
+    max_angle_deg: float = 80.0
+    seam_margin_deg: float = 10.0
+    base_grey: float = 0.5
+    seed: int = 0
+
+    def __post_init__(self):
+        if self.kind not in PAINT_KINDS:
+            raise ValueError(f"paint kind {self.kind!r}: choose one of {', '.join(PAINT_KINDS)}")
+        if self.method not in METHODS:
+            raise ValueError(f"paint method {self.method!r}: choose one of {', '.join(METHODS)}")
+        for name in ("speckle_mm", "checker_mm"):
+            v = getattr(self, name)
+            if not (np.isfinite(v) and v > 0):
+                raise ValueError(f"paint {name} must be positive, got {v!r}")
+        if self.texel_mm is not None and not (np.isfinite(self.texel_mm) and 0 < self.texel_mm <= self.speckle_mm / 2):
+            raise ValueError(f"paint texel_mm must be in (0, speckle_mm / 2], got {self.texel_mm!r}")
+        d = np.asarray(self.direction, float)
+        if d.shape != (3,) or not np.all(np.isfinite(d)) or np.linalg.norm(d) == 0:
+            raise ValueError(f"paint direction must be a non-zero 3-vector, got {self.direction!r}")
+        if (self.axis_point_mm is None) != (self.axis_direction is None):
+            raise ValueError("paint: give both axis_point_mm and axis_direction (a cylinder), or neither")
+        if not 0 < self.max_angle_deg < 90:
+            raise ValueError(f"paint max_angle_deg must be in (0, 90), got {self.max_angle_deg!r}")
+        if not 0.0 <= self.base_grey <= 1.0:
+            raise ValueError(f"paint base_grey must be in [0, 1], got {self.base_grey!r}")
+
+    @property
+    def texel(self) -> float:
+        """Texture resolution in mm (checker: one texel per square)."""
+        if self.kind == "checker":
+            return float(self.checker_mm)
+        return float(self.texel_mm) if self.texel_mm is not None else float(self.speckle_mm) / 5.0
+
+    def to_dict(self) -> dict:
+        return {k: (list(v) if isinstance(v, tuple) else v) for k, v in asdict(self).items()}
+
+
+@dataclass(frozen=True)
+class PaintLayout:
+    """Where the paint lies on a tessellation.
+
+    Attributes
+    ----------
+    uv_mm : (V, 2) texture-plane coordinates of every tessellation vertex, mm
+    painted : (T,) bool, triangles that carry the paint
+    origin_mm : (2,) texture corner (u, v) of texel (0, 0)
+    shape : (rows, cols) of the texture
+    stretch : (T,) how much a speckle is stretched on each triangle (1: true size; NaN unpainted)
+    size_mm : (2,) the texture's extent along u and v (mm)
+    """
+
+    uv_mm: np.ndarray
+    painted: np.ndarray
+    origin_mm: np.ndarray
+    shape: tuple
+    stretch: np.ndarray
+    size_mm: np.ndarray
+
+    def uv(self) -> np.ndarray:
+        """(V, 2) texture coordinates in [0, 1] over the texture (``u`` along columns, ``v`` along rows)."""
+        return (self.uv_mm - self.origin_mm) / self.size_mm
+
+    def with_texture_frame(self, shape: tuple, origin_mm, size_mm) -> "PaintLayout":
+        """The same layout for a texture of ``shape`` covering ``origin_mm + [0, size_mm]`` (a texture of one's own:
+        a photographed pattern, or the built-in beam's)."""
+        from dataclasses import replace
+
+        return replace(self, shape=tuple(int(v) for v in shape), origin_mm=np.asarray(origin_mm, float).reshape(2),
+                       size_mm=np.asarray(size_mm, float).reshape(2))
+
+    def summary(self) -> dict:
+        s = self.stretch[self.painted]
+        return {"painted_triangles": int(self.painted.sum()), "triangles": int(len(self.painted)),
+                "texture_shape": list(self.shape),
+                "stretch_max": float(np.max(s)) if len(s) else None,
+                "stretch_mean": float(np.mean(s)) if len(s) else None,
+                "stretch_over_1_5_fraction": float(np.mean(s > 1.5)) if len(s) else None}
+
+
+def _unit(v) -> np.ndarray:
+    v = np.asarray(v, float)
+    return v / np.linalg.norm(v)
+
+
+def layout(paint: Paint, vertices_mm: np.ndarray, triangles: np.ndarray, source: str = "<mesh>") -> PaintLayout:
+    """Texture coordinates and painted triangles of a tessellation in its reference state (specimen frame).
+
+    Raises ValueError (naming ``source``) when nothing can be painted or the texture would be too large."""
+    V = np.asarray(vertices_mm, float)
+    T = np.asarray(triangles, np.int64)
+    d = _unit(paint.direction)
+    n = np.cross(V[T[:, 1]] - V[T[:, 0]], V[T[:, 2]] - V[T[:, 0]])
+    area2 = np.linalg.norm(n, axis=1)
+    n = n / np.where(area2 > 0, area2, 1.0)[:, None]
+    facing = n @ (-d)                                         # cos of the angle to the incoming paint
+    painted = (facing >= np.cos(np.radians(paint.max_angle_deg))) & (area2 > 0)
+    if paint.method == "wrapped" and paint.axis_direction is not None:
+        a = _unit(paint.axis_direction)
+        c = np.asarray(paint.axis_point_mm, float)
+        e0 = -d - (-d @ a) * a
+        if np.linalg.norm(e0) < 1e-9:
+            raise ValueError(f"{source}: the paint direction is along the cylinder axis; the seam cannot be placed")
+        e0 = _unit(e0)
+        e1 = np.cross(a, e0)
+        rel = V - c
+        radial = rel - np.outer(rel @ a, a)
+        rho = np.linalg.norm(radial, axis=1)
+        theta = np.arctan2(rel @ e1, rel @ e0)
+        lateral = np.abs(n @ a) < np.sin(np.radians(30.0))    # the cylinder's side, not its ends
+        tri_theta = theta[T]
+        seam = np.radians(180.0 - paint.seam_margin_deg)
+        across = (np.ptp(tri_theta, axis=1) > np.pi) | (np.abs(tri_theta).max(axis=1) > seam)
+        painted = lateral & ~across & (area2 > 0)
+        if not painted.any():
+            raise ValueError(f"{source}: no face of the mesh lies on the side of the cylinder around the given axis")
+        r = float(np.median(rho[np.unique(T[painted])]))
+        uv = np.column_stack([r * theta, rel @ a])
+        stretch = np.full(len(T), np.nan)
+        stretch[painted] = rho[T[painted]].mean(axis=1) / r
+    else:                                         # sprayed, or a sheet wrapped on a plane (= sprayed along its normal)
+        e1 = np.array([1.0, 0.0, 0.0]) - d[0] * d
+        if np.linalg.norm(e1) < 1e-6:
+            e1 = np.array([0.0, 1.0, 0.0]) - d[1] * d
+        e1 = _unit(e1)
+        e2 = np.cross(d, e1)
+        uv = np.column_stack([V @ e1, V @ e2])
+        stretch = np.full(len(T), np.nan)
+        stretch[painted] = 1.0 / facing[painted]
+    if not painted.any():
+        raise ValueError(f"{source}: no face turns towards the paint direction {tuple(np.round(d, 6))} within "
+                         f"{paint.max_angle_deg:g} deg; nothing is painted")
+    used = np.unique(T[painted])
+    lo, hi = uv[used].min(axis=0), uv[used].max(axis=0)
+    texel = paint.texel
+    if paint.kind == "checker":
+        lo = np.floor(lo / texel) * texel          # squares aligned with u = v = 0 of the texture plane
+        hi = np.ceil(hi / texel) * texel
+    else:
+        lo, hi = lo - 2 * texel, hi + 2 * texel
+    cols, rows = (int(np.ceil((hi[i] - lo[i]) / texel - 1e-9)) for i in range(2))
+    cols, rows = max(cols, 1), max(rows, 1)
+    if rows * cols > MAX_TEXELS:
+        raise ValueError(f"{source}: a {cols} x {rows} texel paint texture ({texel:g} mm texels over "
+                         f"{hi[0] - lo[0]:.1f} x {hi[1] - lo[1]:.1f} mm) is too large; give a larger texel_mm or "
+                         f"paint less (max_angle_deg)")
+    return PaintLayout(uv, painted, lo, (rows, cols), stretch, np.array([cols, rows]) * texel)
+
+
+def texture(paint: Paint, shape: tuple, origin_mm) -> np.ndarray:
+    """The paint's texture (rows, cols) float32: row 0 at ``v = origin_v``, column 0 at ``u = origin_u``."""
+    from scenes.speckle import speckle_pattern
+
+    rows, cols = shape
+    if paint.kind == "checker":
+        i0, j0 = (int(round(o / paint.checker_mm)) for o in np.asarray(origin_mm)[::-1])
+        r, c = np.meshgrid(np.arange(rows) + i0, np.arange(cols) + j0, indexing="ij")
+        return np.where((r + c) % 2 == 0, paint.mean + 0.5 * paint.contrast, paint.mean - 0.5 * paint.contrast
+                        ).astype(np.float32)
+    return speckle_pattern((rows, cols), paint.speckle_mm / paint.texel, density=paint.density,
+                           contrast=paint.contrast, mean=paint.mean, seed=paint.seed)
