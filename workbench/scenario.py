@@ -18,10 +18,11 @@ renders of every case.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from pathlib import Path
 
 from workbench.config import SCHEMA_VERSION, content_hash, hash_of, to_dict
 
-EXPERIMENTS = ("dic2d", "rigid_motion")
+EXPERIMENTS = ("dic2d", "rigid_motion", "specimen")
 
 
 def _f(default, doc: str = "", **meta):
@@ -161,12 +162,66 @@ class LensConfig:
 
 
 @dataclass(frozen=True)
+class SpecimenConfig:
+    """A specimen of one's own (experiment ``specimen``): a surface mesh or an FE result, placed before the rig
+    and painted (:mod:`scenes.mesh_specimen`). State 0 is the first chosen step (the reference)."""
+
+    mesh: str = _f("", "the mesh or FE result file: STL, PLY, OBJ, GLB (surfaces), VTU, VTK, Gmsh .msh, Abaqus .inp, "
+                       "Exodus .e/.exo (every time step), ParaView .pvd; a relative path is relative to the scenario "
+                       "file")
+    field: str = _f("", "nodal displacement field: a vector field's name, or 'x_name,y_name,z_name'; empty: the one "
+                        "field named like a displacement")
+    unit: str = _f("mm", "the file's length unit (checked against the mesh's size)", choices=("mm", "m", "cm", "um", "in"))
+    steps: tuple[int, ...] | None = _f(None, "time-step indices to render (negative from the end); absent: all")
+    times: tuple[float, ...] | None = _f(None, "or the time steps at these times")
+    origin_mm: tuple[float, float, float] | None = _f(
+        None, "the mesh point put where the rig's optical axes meet (file frame, file unit); absent: the centre of "
+              "the mesh's bounding box in x and y, its smallest z (the mesh's -z faces the cameras)")
+    rotation_deg: tuple[float, float, float] = _f((0.0, 0.0, 0.0), "rotation of the mesh about its x, then y, then "
+                                                                   "z axis before it is placed (deg)",
+                                                  min=-360.0, max=360.0)
+    offset_mm: tuple[float, float, float] = _f((0.0, 0.0, 0.0), "shift after placing, specimen frame (x along the "
+                                                                 "image rows, y down, z away from the cameras), mm",
+                                               min=-1e4, max=1e4)
+    paint: str = _f("speckle", "'speckle' or 'checker' (geometry checks)", choices=("speckle", "checker"))
+    paint_method: str = _f("sprayed", "'sprayed' (projected along paint_direction; stretched on slopes) or "
+                                      "'wrapped' (a printed sheet: on a cylinder around axis_*, by arc length)",
+                           choices=("sprayed", "wrapped"))
+    speckle_mm: float | None = _f(None, "speckle diameter on the surface, mm; absent: speckle.size_px pixels at the "
+                                        "working distance", min=1e-3, max=100.0)
+    texel_mm: float | None = _f(None, "paint texture resolution, mm (absent: speckle / 5)", min=1e-4, max=10.0)
+    checker_mm: float = _f(2.0, "checker square side, mm", min=0.01, max=100.0)
+    paint_direction: tuple[float, float, float] = _f((0.0, 0.0, 1.0), "paint travel direction, specimen frame "
+                                                                       "(default: from the cameras' side)",
+                                                     min=-1.0, max=1.0)
+    axis_point_mm: tuple[float, float, float] | None = _f(None, "cylinder axis point for wrapped paint, specimen "
+                                                               "frame (after placing), mm", min=-1e4, max=1e4)
+    axis_direction: tuple[float, float, float] | None = _f(None, "cylinder axis direction, specimen frame",
+                                                           min=-1.0, max=1.0)
+    max_paint_angle_deg: float = _f(80.0, "faces turned further than this from the paint stay unpainted",
+                                    min=1.0, max=89.0)
+    base_grey: float = _f(0.5, "radiance of unpainted faces", min=0.0, max=1.0)
+    rigid_states: int = _f(0, "extra states moving the last one rigidly (a stage), each by rigid_step_*", min=0,
+                           max=100)
+    rigid_step_mm: tuple[float, float, float] = _f((0.0, 0.0, 0.0), "translation per rigid state, specimen frame",
+                                                   min=-100.0, max=100.0)
+    rigid_step_deg: tuple[float, float, float] = _f((0.0, 0.0, 0.0), "rotation per rigid state about the specimen "
+                                                                      "origin (x, y, z axes)", min=-30.0, max=30.0)
+    grazing_limit_deg: float = _f(70.0, "points seen more obliquely than this are masked", min=10.0, max=89.0)
+    sagitta_px: float = _f(0.005, "largest distance between the flat pieces rendered and the curved FE faces, in "
+                                  "pixel footprints at the working distance", min=1e-4, max=1.0)
+    truth_step_px: int = _f(2, "per-state truth arrays on every n-th pixel (material points and masks: every pixel)",
+                            min=1, max=64)
+
+
+@dataclass(frozen=True)
 class Scenario:
     """One virtual experiment, truth side. ``experiment`` says which parts are used:
 
     * ``dic2d``: ``image2d``, ``speckle``, ``render`` (noise, bit depth), ``seed``;
     * ``rigid_motion``: ``rig``, ``target`` (calibration views), ``speckle``, ``motion``, ``drift``,
-      ``illumination``, ``lens``, ``render``, ``seed``.
+      ``illumination``, ``lens``, ``render``, ``seed``;
+    * ``specimen``: ``rig``, ``specimen`` (a mesh or FE file of one's own), ``speckle``, ``render``, ``seed``.
     """
 
     experiment: str = _f("dic2d", "which virtual experiment", choices=EXPERIMENTS)
@@ -180,6 +235,7 @@ class Scenario:
     drift: DriftConfig = field(default_factory=DriftConfig)
     illumination: IlluminationConfig = field(default_factory=IlluminationConfig)
     lens: LensConfig = field(default_factory=LensConfig)
+    specimen: SpecimenConfig = field(default_factory=SpecimenConfig)
 
 
 @dataclass(frozen=True)
@@ -215,6 +271,7 @@ DATASET_SECTIONS = {
     "dic2d": {"images": ("experiment", "seed", "render", "speckle", "image2d")},
     "rigid_motion": {"calibration": ("seed", "rig", "render", "target", "lens"),
                      "states": ("seed", "rig", "render", "speckle", "motion", "drift", "illumination", "lens")},
+    "specimen": {"states": ("seed", "rig", "render", "speckle", "specimen")},
 }
 
 
@@ -231,8 +288,38 @@ def dataset_parts(scenario: Scenario) -> dict[str, tuple[str, dict]]:
             content["board_renderer"] = BOARD_RENDERER_TAGS[scenario.render.board_renderer]
         if part == "states":
             content["speckle_renderer"] = SPECKLE_RENDERER_TAGS[scenario.render.speckle_renderer]
+        if scenario.experiment == "specimen" and "specimen" in content:
+            # the file's content, not where it lies
+            content["specimen"] = {**content["specimen"], "mesh": Path(scenario.specimen.mesh).name}
+            content["specimen_file_sha256"] = file_sha256(scenario.specimen.mesh)
         out[part] = (hash_of(content), content)
     return out
+
+
+def file_sha256(path: str) -> str | None:
+    """SHA-256 of a file's bytes (None where it does not exist: the renderer then names the missing file)."""
+    import hashlib
+    from pathlib import Path
+
+    p = Path(path)
+    if not path or not p.is_file():
+        return None
+    digest = hashlib.sha256()
+    with open(p, "rb") as handle:
+        for block in iter(lambda: handle.read(1 << 20), b""):
+            digest.update(block)
+    return digest.hexdigest()
+
+
+def with_specimen_paths(scenario: Scenario, base_dir) -> Scenario:
+    """The scenario with its specimen file made absolute, relative to ``base_dir`` (the scenario file's folder)."""
+    from dataclasses import replace
+    from pathlib import Path
+
+    mesh = scenario.specimen.mesh
+    if not mesh or Path(mesh).is_absolute():
+        return scenario
+    return replace(scenario, specimen=replace(scenario.specimen, mesh=str((Path(base_dir) / mesh).resolve())))
 
 
 def _renderers_as_default(scenario: Scenario) -> Scenario:
@@ -248,6 +335,8 @@ def _renderers_as_default(scenario: Scenario) -> Scenario:
 def renderer_tags(scenario: Scenario) -> dict:
     """The renderers other than Mitsuba a scenario's datasets are made with (empty for Mitsuba-only or 2-D
     scenarios): a case measured on other images is another case."""
+    if scenario.experiment == "specimen":
+        return {"speckle_renderer": SPECKLE_RENDERER_TAGS[scenario.render.speckle_renderer]}
     if scenario.experiment != "rigid_motion":
         return {}
     tags = {"board_renderer": BOARD_RENDERER_TAGS[scenario.render.board_renderer],

@@ -26,6 +26,13 @@ def add_parser(sub) -> None:
     cb.add_argument("--overwrite", action="store_true",
                     help="replace an earlier dataset in --out (deletes exactly the files its manifest.json lists)")
     cb.add_argument("--out", type=Path, required=True)
+    sp = rsub.add_parser("specimen", help="a specimen of one's own (mesh or FE file in a scenario's [specimen]): "
+                                          "stereo images of every state + per-pixel truth")
+    sp.add_argument("scenario", type=Path, help="scenario TOML/JSON with experiment = \"specimen\" and a [specimen] "
+                                                 "table (a study file's [scenario] table also works)")
+    sp.add_argument("--overwrite", action="store_true",
+                    help="replace an earlier dataset in --out (deletes exactly the files its manifest.json lists)")
+    sp.add_argument("--out", type=Path, required=True)
 
 
 def render_checkerboard_command(args) -> int:
@@ -43,5 +50,37 @@ def render_checkerboard_command(args) -> int:
     return 0
 
 
+def load_specimen_scenario(path: Path):
+    """A ``specimen`` scenario from its file, the specimen file made absolute relative to the scenario's folder."""
+    from workbench.config import load_config, read_mapping
+    from workbench.scenario import Scenario, with_specimen_paths
+
+    scenario = load_config(Scenario, path, "scenario" if "scenario" in read_mapping(path) else None)
+    if scenario.experiment != "specimen":
+        raise ValueError(f"{path}: experiment = {scenario.experiment!r}; render specimen needs experiment = \"specimen\"")
+    return with_specimen_paths(scenario, Path(path).resolve().parent)
+
+
+def render_specimen_command(args) -> int:
+    from workbench.experiments.specimen.scenes import SIDES, render_specimen
+
+    output_folder(args.out)
+    scenario = load_specimen_scenario(args.scenario)
+    truth = render_specimen(scenario, args.out, overwrite=args.overwrite)
+    masks = truth.info["masks"]
+    for side in SIDES:
+        m = masks[side]
+        lost = ", ".join(f"{k} {v}" for k, v in m.items() if k != "measurable" and v)
+        print(f"{side} reference: {m['measurable']} measurable pixels" + (f" (masked: {lost})" if lost else ""))
+    layout = truth.info["paint_layout"]
+    if layout.get("stretch_max") and layout["stretch_max"] > 1.05:
+        print(f"paint: speckles stretched up to {layout['stretch_max']:.2f}x on sloped faces (mean "
+              f"{layout['stretch_mean']:.2f}x)")
+    made = ", ".join(f"{n} by {name}" for name, n in truth.info["render"].get("renderers", {}).items())
+    print(f"wrote {2 * len(truth.files)} images ({made}) of {len(truth.files)} states, truth.json, truth_*.npz and "
+          f"manifest.json to {args.out}")
+    return 0
+
+
 #: The handler of each (command, subcommand) this module adds.
-HANDLERS = {("render", "checkerboard"): render_checkerboard_command}
+HANDLERS = {("render", "checkerboard"): render_checkerboard_command, ("render", "specimen"): render_specimen_command}

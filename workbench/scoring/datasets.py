@@ -22,7 +22,7 @@ import numpy as np
 from workbench.manifest import read_manifest
 
 #: Dataset kinds another tool can be run on, and whether they are stereo.
-KINDS = {"dic2d": False, "rigid-motion": True, "bending": True}
+KINDS = {"dic2d": False, "rigid-motion": True, "bending": True, "specimen": True}
 
 
 class DatasetError(ValueError):
@@ -116,6 +116,8 @@ def open_dataset(source: str | Path, store=None) -> Dataset:
         images = tuple({side: source / s["files"][side] for side in ("left", "right")} for s in truth["states"])
         if kind == "rigid-motion":
             labels = tuple(f"stage {s['stage_mm']:g} mm" for s in truth["states"])
+        elif kind == "specimen":
+            labels = tuple(str(s["label"]) for s in truth["states"])
         else:
             labels = tuple(f"{s['load_N']:g} N" for s in truth["states"])
     missing = [str(p) for state in images for p in state.values() if not p.is_file()]
@@ -128,11 +130,12 @@ def render_scenario_dataset(path: Path, store=None) -> Path:
     """Render (or find in the store) the images a scenario file describes; returns the dataset folder."""
     from workbench.studies.cases import experiment_module
     from workbench.config import load_config, read_mapping
-    from workbench.scenario import Scenario, dataset_parts
+    from workbench.scenario import Scenario, dataset_parts, with_specimen_paths
     from workbench.store import DatasetStore
 
     # a scenario file, or a study-style file whose [scenario] table is the scenario
     scenario = load_config(Scenario, path, "scenario" if "scenario" in read_mapping(path) else None)
+    scenario = with_specimen_paths(scenario, Path(path).resolve().parent)
     store = store if isinstance(store, DatasetStore) else DatasetStore(store)
     module = experiment_module(scenario.experiment)
     module.check(scenario)
@@ -140,6 +143,9 @@ def render_scenario_dataset(path: Path, store=None) -> Path:
     if scenario.experiment == "dic2d":
         key, content = parts["images"]
         folder, _ = store.ensure("dic2d", key, content, lambda f: module.render_dataset(scenario, f))
+    elif scenario.experiment == "specimen":
+        key, content = parts["states"]
+        folder, _ = store.ensure("specimen", key, content, lambda f: module.render_states(scenario, f))
     else:
         key, content = parts["states"]
         folder, _ = store.ensure("rigid-motion", key, content, lambda f: module.render_states(scenario, f))
@@ -147,6 +153,9 @@ def render_scenario_dataset(path: Path, store=None) -> Path:
 
 
 def _stereo_truth(dataset: Dataset):
+    if dataset.kind == "specimen":
+        from workbench.experiments.specimen.scenes import load_specimen_truth
+        return load_specimen_truth(dataset.folder)
     if dataset.kind == "rigid-motion":
         from workbench.experiments.rigid_motion.scenes import load_truth
         return load_truth(dataset.folder)

@@ -24,8 +24,13 @@ def _rigid_motion():
     return rigid_motion_case
 
 
+def _specimen():
+    from workbench.experiments.specimen import case as specimen_case
+    return specimen_case
+
+
 #: experiment name -> loader of its module (each has KIND, METRICS, FLOORS and run(scenario, instrument, store))
-EXPERIMENT_MODULES = {"dic2d": _dic2d, "rigid_motion": _rigid_motion}
+EXPERIMENT_MODULES = {"dic2d": _dic2d, "rigid_motion": _rigid_motion, "specimen": _specimen}
 
 
 def experiment_module(name: str):

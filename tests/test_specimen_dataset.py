@@ -1,0 +1,111 @@
+"""A specimen of one's own through the workbench (issue 23): the scenario's [specimen] section, ``workbench render
+specimen``, the dataset's truth at any pixel, the store's hash, the study case and scoring.
+
+References are analytic: a flat plate with a linear FE displacement (its material point under any ray is a
+ray-plane intersection, its displacement the linear field's value)."""
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+import skfem
+from skfem.io.meshio import to_meshio
+
+from scenes.fe_files import write_exodus
+
+#: The plate's linear displacement per state: u = A_k X + b_k (mm).
+A = [np.zeros((3, 3)), np.diag([1e-3, -0.3e-3, 0.0]), np.diag([2e-3, -0.6e-3, 0.0])]
+B = [np.zeros(3), np.zeros(3), np.array([0.05, 0.0, 0.02])]
+
+
+def _plate(folder, name="plate.e"):
+    m = to_meshio(skfem.MeshTet.init_tensor(np.linspace(-30, 30, 7), np.linspace(-20, 20, 5), np.linspace(0, 3, 2)))
+    P = m.points
+    U = np.stack([P @ a.T + b for a, b in zip(A, B)])
+    write_exodus(folder / name, P, {"tetra": m.cells[0].data}, U, times=[0.0, 1.0, 2.0])
+    return folder / name
+
+
+def _scenario(folder, scale=0.1, extra=""):
+    _plate(folder)
+    path = folder / "plate.toml"
+    path.write_text(f'experiment = "specimen"\nseed = 3\n[rig]\nname = "paper"\nscale = {scale}\n'
+                    f'[specimen]\nmesh = "plate.e"\n{extra}')
+    return path
+
+
+def test_render_specimen_writes_a_dataset_whose_truth_is_the_analytic_plate(tmp_path, capsys):
+    """CLI render of an Exodus plate: images and truth of 3 states; at integer and sub-pixel points of the left
+    reference image the truth equals the ray-plane intersection moved by the linear field (1e-9 mm)."""
+    from workbench.cli import main
+    from workbench.scoring.datasets import open_dataset, point_truth
+    from scenes.truth import pixel_rays
+
+    scenario = _scenario(tmp_path)
+    assert main(["render", "specimen", str(scenario), "--out", str(tmp_path / "out")]) == 0
+    assert "left reference:" in capsys.readouterr().out
+    ds = open_dataset(tmp_path / "out")
+    assert ds.kind == "specimen" and ds.n_states == 3 and ds.labels[1] == "step 1 (t = 1)"
+    doc = json.loads((tmp_path / "out" / "truth.json").read_text())
+    R0, t0 = np.array(doc["R_world_from_specimen"]), np.array(doc["t_world_from_specimen_mm"])
+    spec_cam = doc["cameras"]["left"]
+    from scenes.camera import SensorSpec
+    spec = SensorSpec(**spec_cam["sensor_spec"])
+    # the mesh's origin (default: bounding-box centre in x, y; smallest z) is the specimen frame's origin
+    shift = np.array([0.0, 0.0, 0.0])
+    x = np.array([120.0, 121.5, 130.25, 140.0])
+    y = np.array([100.0, 100.0, 101.75, 120.5])
+    pt = point_truth(ds, x, y)
+    assert pt.valid.all()
+    o, d = pixel_rays(spec, np.array(spec_cam["R_cam_from_world"]), np.array(spec_cam["t_cam_from_world_mm"]),
+                      np.column_stack([x, y]))
+    o_s, d_s = (o - t0) @ R0, d @ R0
+    lam = -o_s[:, 2] / d_s[:, 2]
+    X = o_s + lam[:, None] * d_s + shift                     # on the plate's face z = 0 (specimen frame)
+    for k in range(3):
+        expected = (X + X @ A[k].T + B[k]) @ R0.T + t0
+        assert np.abs(pt.X_left_mm[k] - expected).max() < 1e-9
+
+
+def test_specimen_out_of_view_names_the_camera(tmp_path, capsys):
+    """A plate moved 500 mm off the axes: the command fails (exit 2) naming the file and the camera; nothing written."""
+    from workbench.cli import main
+
+    scenario = _scenario(tmp_path, extra="offset_mm = [0.0, 500.0, 0.0]\n")
+    assert main(["render", "specimen", str(scenario), "--out", str(tmp_path / "out")]) == 2
+    assert "plate.e: the left camera sees no measurable point of the specimen" in capsys.readouterr().err
+    assert not (tmp_path / "out").exists() or not any((tmp_path / "out").iterdir())
+
+
+def test_dataset_hash_follows_the_file_content_not_its_place(tmp_path):
+    from workbench.config import load_config
+    from workbench.scenario import Scenario, dataset_parts, with_specimen_paths
+
+    path = _scenario(tmp_path)
+    (tmp_path / "b").mkdir()
+    _plate(tmp_path / "b")
+    a = with_specimen_paths(load_config(Scenario, path), tmp_path)
+    b = with_specimen_paths(load_config(Scenario, path), tmp_path / "b")
+    assert dataset_parts(a)["states"][0] == dataset_parts(b)["states"][0]
+    m = to_meshio(skfem.MeshTet.init_tensor(np.linspace(-30, 30, 7), np.linspace(-20, 20, 5), np.linspace(0, 3, 2)))
+    write_exodus(tmp_path / "b" / "plate.e", m.points, {"tetra": m.cells[0].data},
+                 np.zeros((2,) + m.points.shape))
+    assert dataset_parts(a)["states"][0] != dataset_parts(b)["states"][0]
+
+
+def test_rigid_move_of_the_plate_is_measured_without_bias(tmp_path):
+    """The study case on the plate moved rigidly by 0.1 mm (after its undeformed step): the instrument with the true
+    rig measures the move with a mean 3-D error under 2 um (1 % of the 0.17 mm pixel footprint at this scale) and
+    every reference point measured."""
+    from workbench.config import load_config
+    from workbench.scenario import Instrument, Scenario, with_specimen_paths
+    from workbench.store import DatasetStore
+    from workbench.studies.cases import run_case
+
+    path = _scenario(tmp_path, scale=0.2, extra="steps = [0]\nrigid_states = 1\nrigid_step_mm = [0.1, 0.0, 0.0]\n")
+    scenario = with_specimen_paths(load_config(Scenario, path), tmp_path)
+    out = run_case(scenario, Instrument(calibration="true", subset_px=33, step_px=12), DatasetStore(tmp_path / "store"))
+    m = out["metrics"]
+    assert m["points_fraction"] == [1.0]
+    assert m["mean_displacement_error_um"][0] < 2.0
