@@ -355,6 +355,10 @@ def _elasticity_matrix(basis, lam: float, mu: float):
     return sp.bmat(blocks, format="csr")
 
 
+#: Public name of the isotropic stiffness assembly (the specimen catalog solves with it too).
+elasticity_matrix = _elasticity_matrix
+
+
 def _lagrange2(t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """1-D quadratic Lagrange basis on nodes 0, 1/2, 1 and its derivative, each (N, 3)."""
     return (np.stack([2 * (t - 0.5) * (t - 1), -4 * t * (t - 1), 2 * t * (t - 0.5)], axis=1),
