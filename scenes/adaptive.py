@@ -453,18 +453,25 @@ def render_views_auto(views: list[tuple[SensorSpec, tuple[np.ndarray, np.ndarray
     Mitsuba scene. A scene the deterministic renderer refuses (occlusion, a surface behind a camera) is rendered
     by Mitsuba whole, with the reason in ``fallback``. Seeds as :func:`render_views_adaptive`.
     """
-    from scenes.exact_render import RENDERER_IN_FOCUS, NotExactError, render_view_in_focus
+    from scenes.exact_render import (RENDERER_IN_FOCUS, RENDERER_OCCLUSION, NotExactError, render_view_in_focus,
+                                     render_view_occluded)
 
+    made_by = RENDERER_IN_FOCUS
     try:
         parts = [render_view_in_focus(spec, *pose, surfaces, exposure_grey=exposure_grey) for spec, pose in views]
     except NotExactError as err:
-        rendered = render_views_adaptive(views, surfaces, seed=seed, exposure_grey=exposure_grey, settings=settings)
-        return [AutoRender(r.image_grey, "mitsuba-adaptive", r.mc, 0.0, str(err)) for r in rendered]
+        try:           # surfaces hiding one another: exact but at the occluding edges
+            parts = [render_view_occluded(spec, *pose, surfaces, exposure_grey=exposure_grey) for spec, pose in views]
+            made_by = RENDERER_OCCLUSION
+        except NotExactError as err2:
+            rendered = render_views_adaptive(views, surfaces, seed=seed, exposure_grey=exposure_grey,
+                                             settings=settings)
+            return [AutoRender(r.image_grey, "mitsuba-adaptive", r.mc, 0.0, f"{err}; {err2}") for r in rendered]
     if all(known.all() for _, known, _ in parts):
         return [AutoRender(image, info["renderer"], None, 1.0) for image, _, info in parts]
     rendered = render_views_adaptive(views, surfaces, seed=seed, exposure_grey=exposure_grey, settings=settings,
                                      known=[(image, known) for image, known, _ in parts])
-    return [AutoRender(r.image_grey, RENDERER_IN_FOCUS, r.mc, float(info["known_fraction"]))
+    return [AutoRender(r.image_grey, made_by, r.mc, float(info["known_fraction"]))
             for r, (_, _, info) in zip(rendered, parts)]
 
 

@@ -55,6 +55,13 @@ OVERLAP_TOL = 1e-6
 COVERED_TOL = 1e-6
 #: Largest thin-lens blur circle (diameter, px) of a face :func:`render_view_in_focus` draws as sharp.
 MAX_BLUR_PX = 0.1
+#: A depth step between neighbouring pixel centres above this many pixel footprints is an occluding edge (one
+#: surface seen at the 70 deg grazing limit steps ~3 footprints per pixel).
+OCCLUSION_JUMP_FOOTPRINTS = 10.0
+#: Faces seen more obliquely than this (deg from their normal) are left to Mitsuba by :func:`render_view_occluded`.
+OCCLUSION_GRAZING_DEG = 75.0
+#: Name recorded with a view whose occluding edges Mitsuba's adaptive renderer traced and the rest is exact.
+RENDERER_OCCLUSION = "occlusion-quadrature+mitsuba-adaptive"
 
 
 class NotExactError(ValueError):
@@ -366,6 +373,89 @@ def render_view_in_focus(spec: SensorSpec, R_cam_from_world: np.ndarray, t_cam_f
     return image, known, info
 
 
+def render_view_occluded(spec: SensorSpec, R_cam_from_world: np.ndarray, t_cam_from_world_mm: np.ndarray,
+                         surfaces: list[TexturedSurface], *, exposure_grey: float = 255.0,
+                         chord_tol_px: float = CHORD_TOL_PX, quadrature_order: int = QUADRATURE_ORDER
+                         ) -> tuple[np.ndarray, np.ndarray, dict]:
+    """A pinhole view of surfaces that hide one another (a tube's far wall, a hole's bore, a notch), without Monte
+    Carlo wherever no occlusion edge passes.
+
+    The truth side's ray cast (:func:`scenes.ray_surface.cast_rays`) gives the nearest depth at every pixel centre;
+    a face whose plane lies behind that depth at every pixel it can touch (its footprint widened by 1.5 px) is
+    hidden and dropped (:func:`scenes.ray_surface.possibly_visible`). The rest is drawn exactly as by
+    :func:`render_view_exact`, overlaps allowed: a pixel is *known* unless its 3 x 3 neighbourhood holds a pixel
+    covered more than once (an occluding edge over the surface behind it) or a depth jump of more than
+    :data:`OCCLUSION_JUMP_FOOTPRINTS` pixel footprints between neighbouring pixel centres (an occluding edge over
+    the background), or a face seen more obliquely than :data:`OCCLUSION_GRAZING_DEG` (a limb). Unknown pixels are
+    for Mitsuba (:func:`scenes.adaptive.render_views_adaptive` with
+    ``known=``).
+
+    Returns ``(image_grey, known, info)`` as :func:`render_view_in_focus`; ``info`` adds ``hidden_faces``.
+    """
+    from scipy.ndimage import maximum_filter
+
+    from scenes.ray_surface import cast_rays, possibly_visible
+
+    if spec.lens != "pinhole":
+        raise NotExactError(f"the {spec.lens} lens blurs (defocus): occlusion is drawn for a pinhole only")
+    if not surfaces:
+        raise ValueError("nothing to render: no surfaces given")
+    R = np.asarray(R_cam_from_world, dtype=float)
+    t = np.asarray(t_cam_from_world_mm, dtype=float).reshape(3)
+    cull = closed_surface(surfaces)
+    centre = -R.T @ t
+    facing = [_facing_distance_mm(s, centre) > 0 for s in surfaces]
+    candidates = [f if cull else np.ones(len(f), dtype=bool) for f in facing]
+    V = np.concatenate([np.asarray(s.vertices_mm, dtype=float) for s in surfaces])
+    offsets = np.cumsum([0] + [len(s.vertices_mm) for s in surfaces[:-1]])
+    F = np.concatenate([np.asarray(s.faces, dtype=np.int64)[c] + o for s, c, o in zip(surfaces, candidates, offsets)])
+    try:
+        hits = cast_rays(spec, R, t, V, F)
+    except ValueError as err:                     # a surface behind the camera
+        raise NotExactError(str(err)) from None
+    visible = possibly_visible(spec, R, t, V, F, hits.depth_mm)
+    drawn, start = [], 0
+    for c in candidates:
+        d = np.zeros(len(c), dtype=bool)
+        d[np.flatnonzero(c)] = visible[start:start + int(c.sum())]
+        start += int(c.sum())
+        drawn.append(d)
+    emitting = [d & f for d, f in zip(drawn, facing)]
+    image, coverage, info = _draw(spec, R, t, surfaces, drawn, emitting, exposure_grey, chord_tol_px,
+                                  quadrature_order, allow_overlap=True)
+    depth = hits.depth_mm
+    finite = np.isfinite(depth)
+    limit = OCCLUSION_JUMP_FOOTPRINTS * np.where(finite, depth, 0.0) / min(spec.fx, spec.fy)
+    jump = np.zeros(depth.shape, dtype=bool)
+    for a, b, la in ((depth[:, 1:], depth[:, :-1], limit[:, 1:]), (depth[1:], depth[:-1], limit[1:])):
+        both = np.isfinite(a) & np.isfinite(b)
+        j = both & (np.abs(a - np.where(both, b, 0.0)) > la)
+        if a.shape[1] != depth.shape[1]:
+            jump[:, 1:] |= j
+            jump[:, :-1] |= j
+        else:
+            jump[1:] |= j
+            jump[:-1] |= j
+    # a face seen nearly edge-on (a tube's limb): the quadrature's node hits are ill-conditioned there
+    grazing = np.zeros(depth.shape, dtype=bool)
+    hit = hits.triangle >= 0
+    if hit.any():
+        Vc = V @ R.T + t
+        tri = F[hits.triangle[hit]]
+        n = np.cross(Vc[tri[:, 1]] - Vc[tri[:, 0]], Vc[tri[:, 2]] - Vc[tri[:, 0]])
+        from scenes.ray_surface import pixel_centre_rays
+        d = np.concatenate([pixel_centre_rays(spec)[hit], np.ones((int(hit.sum()), 1))], axis=1)
+        cos = np.abs(np.einsum("ij,ij->i", n, d)) / (np.linalg.norm(n, axis=1) * np.linalg.norm(d, axis=1))
+        grazing[hit] = cos < np.cos(np.radians(OCCLUSION_GRAZING_DEG))
+    known = ~maximum_filter((coverage > 1.0 + OVERLAP_TOL) | jump | grazing, size=3)
+    image[~known] = 0.0
+    lit = coverage > 0
+    reached = ~known | lit
+    info.update(back_faces_culled=bool(cull), hidden_faces=int(sum(int((c & ~d).sum()) for c, d in zip(candidates, drawn))),
+                known_fraction=float((known & reached).sum() / max(int(reached.sum()), 1)))
+    return image, known, info
+
+
 def _facing_distance_mm(surface: TexturedSurface, centre_world_mm: np.ndarray) -> np.ndarray:
     """Signed distance of the camera centre from every face's plane, mm (> 0: the emitting side is seen)."""
     faces = np.asarray(surface.faces, dtype=int)
@@ -384,10 +474,11 @@ def _pixel_box(xy: np.ndarray, spec: SensorSpec, margin: int):
     return None if x1 <= x0 or y1 <= y0 else (x0, y0, x1, y1)
 
 
-def _draw(spec, R, t, surfaces, drawn, emitting, exposure_grey, chord_tol_px, quadrature_order
-          ) -> tuple[np.ndarray, np.ndarray, dict]:
+def _draw(spec, R, t, surfaces, drawn, emitting, exposure_grey, chord_tol_px, quadrature_order,
+          allow_overlap: bool = False) -> tuple[np.ndarray, np.ndarray, dict]:
     """Image and coverage of the ``drawn`` faces of every surface (``emitting`` ones with their radiance, the
-    rest black but opaque), full sensor; refuses overlapping faces."""
+    rest black but opaque), full sensor; refuses overlapping faces unless ``allow_overlap`` (the caller then
+    leaves the pixels covered more than once to a ray tracer)."""
     polys, values, front, smooth = [], [], [], []      # smooth: index of the bilinear surface, -1 for prints
     bilinear = []
     for index, (surface, draw, emit) in enumerate(zip(surfaces, drawn, emitting)):
@@ -425,7 +516,7 @@ def _draw(spec, R, t, surfaces, drawn, emitting, exposure_grey, chord_tol_px, qu
     shape = (y1 - y0, x1 - x0)
     window_coverage = accumulate_flat(xy, starts, np.ones(len(polys)), shape, (x0, y0))
     info["max_coverage"] = float(window_coverage.max())
-    if window_coverage.max() > 1.0 + OVERLAP_TOL:
+    if window_coverage.max() > 1.0 + OVERLAP_TOL and not allow_overlap:
         raise NotExactError(f"surfaces overlap in the image (a pixel is covered {window_coverage.max():.4f} times): "
                             "occlusion needs ray tracing")
     weights = np.where(front & (smooth < 0), values * float(exposure_grey), 0.0)

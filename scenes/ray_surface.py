@@ -157,6 +157,79 @@ def cast_rays(spec: SensorSpec, R_cam_from_world, t_cam_from_world_mm, vertices_
     return RayHits(tri, bary, depth, front)
 
 
+@numba.njit(cache=True)
+def _possibly_visible(A, B, C, boxes, rays, depth, keep, slack_px):
+    H, W = depth.shape
+    for k in range(A.shape[0]):
+        ax, ay, az = A[k, 0], A[k, 1], A[k, 2]
+        e1x, e1y, e1z = B[k, 0] - ax, B[k, 1] - ay, B[k, 2] - az
+        e2x, e2y, e2z = C[k, 0] - ax, C[k, 1] - ay, C[k, 2] - az
+        nx = e1y * e2z - e1z * e2y
+        ny = e1z * e2x - e1x * e2z
+        nz = e1x * e2y - e1y * e2x
+        x0, y0, x1, y1 = boxes[k, 0], boxes[k, 1], boxes[k, 2], boxes[k, 3]
+        size = max(x1 - x0, y1 - y0, 1)
+        tol = slack_px / size                  # barycentric slack: about slack_px around the triangle
+        found = False
+        for r in range(max(y0, 0), min(y1, H)):
+            for c in range(max(x0, 0), min(x1, W)):
+                dx, dy = rays[r, c, 0], rays[r, c, 1]
+                if dx != dx:
+                    continue
+                px = dy * e2z - e2y
+                py = e2x - dx * e2z
+                pz = dx * e2y - dy * e2x
+                det = e1x * px + e1y * py + e1z * pz
+                if det == 0.0:
+                    continue
+                inv = 1.0 / det
+                u = (-ax * px - ay * py - az * pz) * inv
+                qx = -ay * e1z + az * e1y
+                qy = -az * e1x + ax * e1z
+                qz = -ax * e1y + ay * e1x
+                v = (dx * qx + dy * qy + qz) * inv
+                if u < -tol or v < -tol or u + v > 1.0 + tol:
+                    continue
+                dn = nx * dx + ny * dy + nz
+                if dn == 0.0:
+                    continue
+                d_plane = (nx * ax + ny * ay + nz * az) / dn
+                if d_plane > 0.0 and d_plane <= depth[r, c] * (1.0 + 1e-9) + 1e-9:
+                    found = True
+                    break
+            if found:
+                break
+        keep[k] = found
+
+
+def possibly_visible(spec: SensorSpec, R_cam_from_world, t_cam_from_world_mm, vertices_world_mm, triangles,
+                     depth_mm: np.ndarray, slack_px: float = 1.5) -> np.ndarray:
+    """(T,) bool: triangles whose plane is not behind the nearest depth ``depth_mm`` (:func:`cast_rays`) at some pixel
+    centre within ~``slack_px`` of them; the others are hidden behind nearer surfaces wherever they could show."""
+    from scenes.truth import project_points
+
+    R = np.asarray(R_cam_from_world, float)
+    t = np.asarray(t_cam_from_world_mm, float).reshape(3)
+    V = np.asarray(vertices_world_mm, float) @ R.T + t
+    T = np.asarray(triangles, np.int64)
+    keep = np.zeros(len(T), bool)
+    if not len(T):
+        return keep
+    A, B, C = V[T[:, 0]], V[T[:, 1]], V[T[:, 2]]
+    xy = project_points(spec, np.eye(3), np.zeros(3), np.concatenate([A, B, C, 0.5 * (A + B), 0.5 * (B + C),
+                                                                       0.5 * (C + A)])).reshape(6, len(T), 2)
+    lo, hi = np.nanmin(xy, axis=0), np.nanmax(xy, axis=0)
+    ok = np.all(np.isfinite(lo), axis=1)
+    m = BOX_MARGIN_PX
+    boxes = np.column_stack([np.floor(lo[:, 0] - m), np.floor(lo[:, 1] - m), np.ceil(hi[:, 0] + m) + 1,
+                             np.ceil(hi[:, 1] + m) + 1])
+    H, W = depth_mm.shape
+    boxes = np.clip(np.nan_to_num(boxes), -1, max(H, W) + 1).astype(np.int64)
+    _possibly_visible(A, B, C, boxes, pixel_centre_rays(spec), np.asarray(depth_mm, float), keep, float(slack_px))
+    keep[~ok] = True                          # cannot tell: keep (overlap is then detected and traced)
+    return keep
+
+
 def refine_on_surface(mesh, face, st, displacement_mm, origins_world_mm, directions_world, R_world_from_specimen,
                       t_world_from_specimen_mm, tol: float = 1e-13, iterations: int = 12) -> tuple[np.ndarray, np.ndarray]:
     """Newton from ``(face, st)`` onto the curved surface deformed by nodal ``displacement_mm`` along each ray.

@@ -368,7 +368,9 @@ class SurfaceMesh:
 
     # ---- tessellation
     def sagitta_mm(self, n: int, displacement_mm=None, samples: int = 3) -> float:
-        """Largest distance between the curved faces and their ``n x n`` flat pieces, sampled inside the pieces."""
+        """Largest distance between the curved faces and the planes of their ``n x n`` flat pieces, sampled inside
+        the pieces. Along the plane a piece and its face may differ in parametrisation only (a graded mesh on a
+        flat face): that moves no surface point, and the paint and the truth follow positions, not parameters."""
         if self.order == 1 and set(self.faces) <= {"triangle"}:
             return 0.0
         tess = self.tessellate(n, check=False)
@@ -383,7 +385,10 @@ class SurfaceMesh:
         curved = self.evaluate(faces, pts_st, V)
         corners = self.evaluate(np.repeat(tess.triangle_face, 3), tri_st.reshape(-1, 2), V).reshape(-1, 3, 3)
         flat = np.einsum("kb,tbi->tki", bary, corners).reshape(-1, 3)
-        return float(np.max(np.linalg.norm(curved - flat, axis=1))) if len(flat) else 0.0
+        normal = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
+        normal /= np.maximum(np.linalg.norm(normal, axis=1, keepdims=True), 1e-300)
+        off = np.einsum("ti,tki->tk", normal, (curved - flat).reshape(len(corners), len(bary), 3))
+        return float(np.max(np.abs(off))) if off.size else 0.0
 
     def pieces_for_sagitta(self, tolerance_mm: float, displacement_mm=None, max_n: int = 32) -> int:
         """The smallest ``n`` (1, 2, 4, ... up to ``max_n``) whose flat pieces stay within ``tolerance_mm``; warns

@@ -1,6 +1,8 @@
 """The ``workbench`` command line.
 
     workbench render checkerboard --rig paper --views N --seed S [--scale F] [--spp N] [--overwrite] --out DIR
+    workbench render specimen SCENARIO.toml [--overwrite] --out DIR    (a mesh or FE file of one's own)
+    workbench catalog plate_with_hole|notched_coupon|pressurised_cylinder|beam [--scale F] --out DIR
     workbench reproduce agreement [--rig paper] [--views N] [--scale F] [--spp N] [--seed S] --out DIR
     workbench reproduce depth-of-field [--scale F] [--f-number N] [--spp N] --out DIR
     workbench reproduce calibration [--scale F] [--seed S] [--spp N] --out DIR
@@ -32,11 +34,12 @@ import contextlib
 import sys
 import warnings
 
-from workbench.commands import (budget, calibrate, calibration, dic, export, gate, parameters, render, reproduce,
-                                score, stereo, sweep)
+from workbench.commands import (budget, calibrate, calibration, catalog, dic, export, gate, parameters, render,
+                                reproduce, score, stereo, sweep)
 
 #: The verbs in the order ``workbench --help`` lists them.
-VERBS = (render, reproduce, calibrate, stereo, dic, sweep, budget, export, score, gate, parameters, calibration)
+VERBS = (render, reproduce, calibrate, stereo, dic, sweep, budget, export, score, gate, parameters, calibration,
+         catalog)
 #: (command, subcommand or None) -> handler(args) -> exit code, from every verb's module.
 HANDLERS = {key: handler for verb in VERBS for key, handler in verb.HANDLERS.items()}
 

@@ -62,6 +62,9 @@ class RenderConfig:
     board_renderer: str = _f("auto", "calibration-board views: 'auto' renders the exact box-filtered pixel of the "
                                      "printed polygons where a view allows it (pinhole, no occlusion; else Mitsuba "
                                      "at spp), 'mitsuba' always Monte Carlo at spp", choices=("auto", "mitsuba"))
+    mc_target_grey: float | None = _f(None, "specimen scenarios: Monte-Carlo noise target (grey RMS) of the pixels "
+                                            "the deterministic renderer leaves to Mitsuba (occluding edges, "
+                                            "thin-lens blur); absent: 0.3", min=0.01, max=10.0)
     speckle_renderer: str = _f("auto", "speckle states: 'auto' renders without Monte Carlo where a view allows it "
                                        "(pinhole: exact coverage, Gauss-Legendre quadrature of the speckle; else "
                                        "Mitsuba at spp), 'mitsuba' always Monte Carlo at spp",
@@ -208,8 +211,9 @@ class SpecimenConfig:
     rigid_step_deg: tuple[float, float, float] = _f((0.0, 0.0, 0.0), "rotation per rigid state about the specimen "
                                                                       "origin (x, y, z axes)", min=-30.0, max=30.0)
     grazing_limit_deg: float = _f(70.0, "points seen more obliquely than this are masked", min=10.0, max=89.0)
-    sagitta_px: float = _f(0.005, "largest distance between the flat pieces rendered and the curved FE faces, in "
-                                  "pixel footprints at the working distance", min=1e-4, max=1.0)
+    sagitta_px: float = _f(0.02, "largest distance between the flat pieces rendered and the curved FE faces, in "
+                                 "pixel footprints at the working distance (the truth is the curved surface's)",
+                           min=1e-4, max=1.0)
     truth_step_px: int = _f(2, "per-state truth arrays on every n-th pixel (material points and masks: every pixel)",
                             min=1, max=64)
 

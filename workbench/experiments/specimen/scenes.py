@@ -37,6 +37,8 @@ from workbench.rigs import StereoRig, get_rig
 
 SIDES = ("left", "right")
 KIND = "specimen"
+#: Monte-Carlo noise (grey RMS) of the pixels left to Mitsuba when the scenario does not say.
+DEFAULT_MC_TARGET_GREY = 0.3
 
 
 class SpecimenOutOfViewError(ValueError):
@@ -295,12 +297,15 @@ def render_specimen(scenario, out_dir, *, progress: bool = True, overwrite: bool
     noise = SensorNoise(read_noise_grey=r.read_noise_grey, bit_depth=8, electrons_per_grey=r.electrons_per_grey)
     render_log: list = []
     mc_log: list = []
+    # what the deterministic renderer cannot make (occluding edges, blur) is traced to this Monte-Carlo noise
+    mc_target = (DEFAULT_MC_TARGET_GREY if r.mc_target_grey is None else r.mc_target_grey) \
+        if r.speckle_renderer == "auto" else None
     truth.files = render_stereo_states(
         truth, lambda k: truth.specimen.surfaces(k, *truth.pose), K, out_dir, noise, spp=r.spp, seed=scenario.seed,
         desc=f"rendering {src.name}", progress=progress, renderer=r.speckle_renderer, render_log=render_log,
-        mc_log=mc_log)
+        mc_log=mc_log, mc_target_grey=mc_target)
     rig = get_rig(scenario.rig.name, scenario.rig.scale)
-    truth.info.update(render_info(rig, scenario.rig.scale, r.spp, scenario.seed, r.read_noise_grey, None, mc_log,
+    truth.info.update(render_info(rig, scenario.rig.scale, r.spp, scenario.seed, r.read_noise_grey, mc_target, mc_log,
                                   render_log))
     with atomic_writer(out_dir / copied, "wb") as handle, open(src, "rb") as source:
         shutil.copyfileobj(source, handle)
