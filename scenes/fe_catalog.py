@@ -110,20 +110,22 @@ def _mirror(points, cells, U, axes) -> tuple[np.ndarray, np.ndarray, np.ndarray]
 
 
 # ------------------------------------------------------------------------------------------------------------
-def plate_with_hole(width_mm: float = 60.0, thickness_mm: float = 3.0, hole_radius_mm: float = 6.0,
-                    stress_mpa=(0.0, 40.0, 80.0, 120.0), E_mpa: float = 70_000.0, nu: float = 0.33,
-                    n_around: int = 12, n_radial: int = 10) -> FEResult:
-    """A ``width x width x thickness`` plate (x, y, z), a central hole, remote stress along x (MPa per step).
+def plate_with_hole(length_mm: float = 120.0, width_mm: float = 60.0, thickness_mm: float = 3.0,
+                    hole_radius_mm: float = 6.0, stress_mpa=(0.0, 40.0, 80.0, 120.0), E_mpa: float = 70_000.0,
+                    nu: float = 0.33, n_around: int = 12, n_radial: int = 10) -> FEResult:
+    """A ``length x width x thickness`` plate (x, y, z), a central hole, remote stress along x (MPa per step).
 
-    Quarter model on an O-grid: the parameter ``s`` runs along the quarter square's outer edges (x = w/2, then
-    y = w/2) and the hole's arc at the same time, ``rho`` from the hole to the edge (graded towards the hole)."""
-    w, T, a = 0.5 * width_mm, thickness_mm, hole_radius_mm
+    Quarter model on an O-grid: the parameter ``s`` runs along the quarter rectangle's outer edges (x = l/2, then
+    y = w/2) and the hole's arc at the same time, ``rho`` from the hole to the edge (graded towards the hole).
+    The check (``tests/test_fe_catalog.py``): the strain concentration at the hole's side, averaged through the
+    thickness, against Howland's for a hole in a long strip."""
+    l, w, T, a = 0.5 * length_mm, 0.5 * width_mm, thickness_mm, hole_radius_mm
 
     def mapping(q):
         rho, s, z = q
         theta = 0.25 * np.pi * s                                     # 0 .. pi/2 over s in [0, 2]
         hole = np.array([a * np.cos(theta), a * np.sin(theta)])
-        edge = np.where(s <= 1, np.array([np.full_like(s, w), w * s]), np.array([w * (2 - s), np.full_like(s, w)]))
+        edge = np.where(s <= 1, np.array([np.full_like(s, l), w * s]), np.array([l * (2 - s), np.full_like(s, w)]))
         g = rho ** 1.6
         xy = (1 - g) * hole + g * edge
         return np.array([xy[0], xy[1], z])
@@ -133,15 +135,15 @@ def plate_with_hole(width_mm: float = 60.0, thickness_mm: float = 3.0, hole_radi
     u, basis, seconds = _solve(mesh, E_mpa, nu,
                                fixed=[(0, lambda x: np.abs(x[0]) < tol), (1, lambda x: np.abs(x[1]) < tol),
                                       (2, lambda x: np.abs(x[2] - T / 2) < tol)],
-                               loads=[(lambda x: np.abs(x[0] - w) < tol,
+                               loads=[(lambda x: np.abs(x[0] - l) < tol,
                                        lambda x, n: np.array([np.ones_like(x[0]), 0 * x[0], 0 * x[0]]))])
     P, C = _hex27(mesh, basis)
     U = np.stack([u.T * s for s in stress_mpa])
     P, C, U = _mirror(P, C, U, (0, 1))
     return FEResult("plate_with_hole", P, C, U, np.asarray(stress_mpa, float), "MPa remote stress",
-                    {"width_mm": width_mm, "thickness_mm": T, "hole_radius_mm": a, "E_mpa": E_mpa, "nu": nu,
+                    {"length_mm": length_mm, "width_mm": width_mm, "thickness_mm": T, "hole_radius_mm": a, "E_mpa": E_mpa, "nu": nu,
                      "elements": int(len(C)), "solve_s": round(seconds, 2),
-                     "about": "remote tension along x on the x = +-width/2 faces; quarter model, mirrored"})
+                     "about": "remote tension along x on the x = +-length/2 faces; quarter model, mirrored"})
 
 
 def notched_coupon(length_mm: float = 80.0, width_mm: float = 30.0, thickness_mm: float = 3.0,

@@ -249,6 +249,21 @@ def _from_meshio(path: str, mesh):
     return points, cells, fields, np.zeros(len(fields))
 
 
+def specimen_file_set(path) -> list[Path]:
+    """The files one specimen file stands for: itself, and for a ``.pvd`` collection every file it lists (to copy a
+    specimen whole)."""
+    import xml.etree.ElementTree as ET
+
+    path = Path(path)
+    if path.suffix.lower() != ".pvd":
+        return [path]
+    try:
+        sets = ET.parse(path).getroot().findall(".//DataSet")
+    except ET.ParseError as exc:
+        raise SpecimenFileError(f"{path}: not a readable .pvd collection ({exc})") from exc
+    return [path] + [path.parent / s.get("file") for s in sets if s.get("file")]
+
+
 def _read_pvd(path: str):
     """A ParaView collection: one mesh file per time step (same mesh), ``<DataSet timestep= file=>``."""
     import xml.etree.ElementTree as ET

@@ -107,5 +107,6 @@ def test_rigid_move_of_the_plate_is_measured_without_bias(tmp_path):
     scenario = with_specimen_paths(load_config(Scenario, path), tmp_path)
     out = run_case(scenario, Instrument(calibration="true", subset_px=33, step_px=12), DatasetStore(tmp_path / "store"))
     m = out["metrics"]
-    assert m["points_fraction"] == [1.0]
+    assert out["coords"]["state"] == [1, 2]            # the move, then the static repeat of state 0
+    assert m["points_fraction"][0] == 1.0
     assert m["mean_displacement_error_um"][0] < 2.0

@@ -210,6 +210,8 @@ class SpecimenConfig:
                                                    min=-100.0, max=100.0)
     rigid_step_deg: tuple[float, float, float] = _f((0.0, 0.0, 0.0), "rotation per rigid state about the specimen "
                                                                       "origin (x, y, z axes)", min=-30.0, max=30.0)
+    static_pair: bool = _f(True, "end with a static state: state 0 again with new sensor noise (the noise floor the "
+                                 "instrument reaches on this scene)")
     grazing_limit_deg: float = _f(70.0, "points seen more obliquely than this are masked", min=10.0, max=89.0)
     sagitta_px: float = _f(0.02, "largest distance between the flat pieces rendered and the curved FE faces, in "
                                  "pixel footprints at the working distance (the truth is the curved surface's)",

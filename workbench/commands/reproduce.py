@@ -1,6 +1,6 @@
 """``workbench reproduce WHAT``: the paper's checks, each writing a report.
 
-WHAT: agreement, calibration, rigid-motion, bending, fig6-causes, paper, dic-accuracy, depth-of-field, star.
+WHAT: agreement, calibration, rigid-motion, bending, fig6-causes, paper, dic-accuracy, depth-of-field, star, catalog.
 """
 from __future__ import annotations
 
@@ -84,6 +84,18 @@ def add_parser(sub) -> None:
                     help="dataset store: renders kept by content hash and reused (default $WORKBENCH_STORE or "
                          "~/.cache/scheimpflug-dic-workbench/datasets)")
     bd.add_argument("--out", type=Path, required=True)
+    ct = repsub.add_parser("catalog", help="the specimen catalog (plate with a hole, notched coupon, pressurised tube, "
+                                           "beam): FE files, stereo renders with exact truth, measured and scored")
+    ct.add_argument("--names", nargs="+", default=None,
+                    choices=("plate_with_hole", "notched_coupon", "pressurised_cylinder", "beam"),
+                    help="which specimens (default: all)")
+    ct.add_argument("--scale", type=scale_arg, default=0.25)
+    ct.add_argument("--subset", type=subset_arg, default=33)
+    ct.add_argument("--step", type=positive_int_arg, default=8)
+    ct.add_argument("--window", type=positive_int_arg, default=9, help="strain window, points per side (odd)")
+    ct.add_argument("--store", type=Path, default=None,
+                    help="dataset store (default $WORKBENCH_STORE or ~/.cache/scheimpflug-dic-workbench/datasets)")
+    ct.add_argument("--out", type=Path, required=True)
     f6 = repsub.add_parser("fig6-causes", help="which simulated error sources explain the paper's Fig 6 error growth "
                                                 "(a study on Dask, resumable)")
     f6.add_argument("--study", type=Path, default=None, help="study file (default studies/fig6_causes.toml)")
@@ -117,6 +129,20 @@ def add_parser(sub) -> None:
     dof.add_argument("--f-number", type=positive_float_arg, default=4.0)
     dof.add_argument("--spp", type=positive_int_arg, default=64)
     dof.add_argument("--seed", type=seed_arg, default=0)
+
+
+def reproduce_catalog_command(args) -> int:
+    from workbench.experiments.specimen.run import reproduce_catalog
+
+    output_folder(args.out)
+    result = reproduce_catalog(args.out, args.names, scale=args.scale, subset_size=args.subset, step=args.step,
+                               window=args.window, store=args.store)
+    for m in result["specimens"]:
+        v = m["verdicts"]
+        print(f"{m['name']}: noise floor {m['noise_floor_um']:.3g} µm; " + "; ".join(
+            f"{k} {'met' if x['met'] else 'MISSED'}" for k, x in v.items()))
+    print(f"report: {args.out / 'report.md'}")
+    return 0
 
 
 def _rig_option(calib: str) -> None:
@@ -294,4 +320,5 @@ HANDLERS = {
     ("reproduce", "bending"): reproduce_bending_command,
     ("reproduce", "fig6-causes"): fig6_causes_command,
     ("reproduce", "star"): reproduce_star_command,
+    ("reproduce", "catalog"): reproduce_catalog_command,
 }

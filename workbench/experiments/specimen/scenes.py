@@ -7,7 +7,7 @@ and steps, where the mesh goes and how it is painted. The mesh's own frame is tu
 face): the *specimen frame* of the truth. State ``k`` is the ``k``-th chosen FE step, then ``rigid_states`` rigid
 moves of the last one.
 
-A dataset folder holds ``left_KK.png`` / ``right_KK.png``, the specimen file itself (``specimen_<name>``: the
+A dataset folder holds ``left_KK.png`` / ``right_KK.png``, the specimen file itself (the file, and a ``.pvd``'s VTU files: the
 folder is self-contained), ``truth.json`` (cameras, placement, states, paint, masks), ``truth_left.npz`` and
 ``truth_right.npz`` (every pixel of that camera's reference image: the face seen, its ``(s, t)``, the mask bits of
 :data:`scenes.mesh_specimen.MASK_BITS`) and ``truth_states.npz`` (on every ``truth_step_px``-th pixel of the left
@@ -223,6 +223,10 @@ def _build(scenario) -> _Built:
         rigid.append((rotation_xyz_deg(np.asarray(cfg.rigid_step_deg) * j), np.asarray(cfg.rigid_step_mm) * j))
         labels.append(f"rigid move {j}")
     U = np.concatenate([U, np.repeat(U[-1:], cfg.rigid_states, axis=0)])
+    if cfg.static_pair:               # the same scene again, new sensor noise: the instrument's noise floor
+        U = np.concatenate([U, U[:1]])
+        rigid.append(rigid[0])
+        labels.append("static: state 0 again")
     speckle_px = 5.0 if scenario.speckle.size_px is None else scenario.speckle.size_px
     paint = Paint(kind=cfg.paint, method=cfg.paint_method,
                   speckle_mm=cfg.speckle_mm if cfg.speckle_mm is not None else speckle_px * footprint_mm,
@@ -288,10 +292,17 @@ def render_specimen(scenario, out_dir, *, progress: bool = True, overwrite: bool
     truth = specimen_truth(scenario, progress=progress)
     K = truth.specimen.n_states
     digits = max(2, len(str(K - 1)))
+    from scenes.fe_files import specimen_file_set
+
     src = Path(scenario.specimen.mesh)
-    copied = f"specimen_{src.name}"
-    planned = [f"{side}_{k:0{digits}d}.png" for k in range(K) for side in SIDES] + \
-        ["truth.json", "truth_left.npz", "truth_right.npz", "truth_states.npz", copied]
+    sources = specimen_file_set(src)              # a .pvd collection: its VTU files too
+    copied = src.name
+    images = [f"{side}_{k:0{digits}d}.png" for k in range(K) for side in SIDES]
+    own = ["truth.json", "truth_left.npz", "truth_right.npz", "truth_states.npz"]
+    clash = sorted({p.name for p in sources} & set(images + own + ["manifest.json"]))
+    if clash:
+        raise ValueError(f"{src}: the specimen file name {clash[0]} is one the dataset writes itself; rename it")
+    planned = images + own + [p.name for p in sources]
     prepare_folder(out_dir, KIND, planned, overwrite=overwrite)
     r = scenario.render
     noise = SensorNoise(read_noise_grey=r.read_noise_grey, bit_depth=8, electrons_per_grey=r.electrons_per_grey)
@@ -307,8 +318,9 @@ def render_specimen(scenario, out_dir, *, progress: bool = True, overwrite: bool
     rig = get_rig(scenario.rig.name, scenario.rig.scale)
     truth.info.update(render_info(rig, scenario.rig.scale, r.spp, scenario.seed, r.read_noise_grey, mc_target, mc_log,
                                   render_log))
-    with atomic_writer(out_dir / copied, "wb") as handle, open(src, "rb") as source:
-        shutil.copyfileobj(source, handle)
+    for path in sources:
+        with atomic_writer(out_dir / path.name, "wb") as handle, open(path, "rb") as source:
+            shutil.copyfileobj(source, handle)
     for side in SIDES:
         m = truth.maps[side]
         _save_npz(out_dir / f"truth_{side}.npz", face=m.face.astype(np.int32), st=m.st, mask=m.mask)
@@ -366,7 +378,7 @@ def _truth_to_json(truth: SpecimenTruth, copied: str, scenario) -> dict:
     R, t = truth.pose
     return {
         "about": "Ground truth of a rendered specimen of one's own. World frame = left camera frame (OpenCV axes, mm). "
-                 "The specimen file (specimen_<name>) is placed by 'placement' (X_specimen = R_specimen_from_file "
+                 "The specimen file ('specimen_file') is placed by 'placement' (X_specimen = R_specimen_from_file "
                  "(X_file - origin) + offset, in mm) and X_world = R_world_from_specimen R_k (X + u_k(X)) + "
                  "R_world_from_specimen t_k + t_world_from_specimen_mm, u_k the FE displacement of state k and "
                  "(R_k, t_k) its rigid move ('rigid_states'). truth_<camera>.npz: per pixel of that camera's reference "
