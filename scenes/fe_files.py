@@ -117,6 +117,7 @@ def read_specimen_file(path, *, unit: str = "mm", displacement: str | tuple | No
         points, cells, fields, file_times = _read_pvd(path)
     else:
         points, cells, fields, file_times = _read_meshio(path, file_format)
+    planar = _planar(points, fields)
     _check_size(path, points * scale, unit)
     volume = {k: v for k, v in cells.items() if k in VOLUME_TYPES and len(v)}
     try:
@@ -129,6 +130,7 @@ def read_specimen_file(path, *, unit: str = "mm", displacement: str | tuple | No
         found = ", ".join(f"{len(v)} {k}" for k, v in cells.items()) or "no cells"
         raise SpecimenFileError(f"{err} (the file has {found})") from None
     info = {"cells": {k: int(len(v)) for k, v in cells.items()}, "fields": sorted(_field_names(fields, len(points))),
+            **({"two_dimensional": planar} if planar else {}),
             "n_steps_in_file": int(len(file_times)), "faces": {k: int(len(v)) for k, v in mesh.faces.items()}}
     if not fields:
         if displacement is not None:
@@ -139,6 +141,28 @@ def read_specimen_file(path, *, unit: str = "mm", displacement: str | tuple | No
     name = _pick_field(path, fields[0], len(points), displacement)
     U = np.stack([_field_vector(path, fields[k], name, len(points), k) for k in chosen]) * scale
     return SpecimenFile(mesh, U, np.asarray(file_times)[chosen], np.asarray(chosen, np.int64), name, path, unit, info)
+
+
+def _planar(points: np.ndarray, fields: list) -> list:
+    """A 2-D model (every z = 0): each in-plane displacement pair ``<name>_x, <name>_y`` gets ``<name>_z = 0``, so
+    it reads as any 3-D field. Returns the names added."""
+    from scenes.fields import COMPONENT_PATTERN
+
+    if not len(points) or np.any(points[:, 2] != 0) or not fields:
+        return []
+    added = set()
+    for step in fields:
+        groups: dict = {}
+        for key in list(step):
+            m = COMPONENT_PATTERN.match(key)
+            if m:
+                groups.setdefault(m.group(1), {})[m.group(2).lower()] = key
+        for base, g in groups.items():
+            if set(g) == {"x", "y"}:
+                name = g["x"][:-1] + ("z" if g["x"][-1] == "x" else "Z")
+                step[name] = np.zeros(np.size(step[g["x"]]))
+                added.add(name)
+    return sorted(added)
 
 
 def _check_size(path: str, points_mm: np.ndarray, unit: str) -> None:

@@ -1054,6 +1054,8 @@ class FEMeshField(DisplacementField):
 
 _DISPLACEMENT_NAMES = re.compile(r"^(u|d|disp|displ|displacement|displacements|deformation|dis)$", re.IGNORECASE)
 _COMPONENT = re.compile(r"^(.*?)[_\-:. ]?([xyzXYZ])$")
+#: Public: how a scalar field names its component (``disp_x``, ``ux``, ``U:X``).
+COMPONENT_PATTERN = _COMPONENT
 
 
 def displacement_field_name(point_data: dict, n_points: int, name, source: str) -> str | tuple[str, str, str]:

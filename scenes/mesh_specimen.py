@@ -223,6 +223,55 @@ class MeshSpecimen:
                 visible[k] &= seen
         return X, xy, visible
 
+    def paint_points(self, uv_mm, k: int = 0, tol: float = 1e-12) -> tuple[np.ndarray, np.ndarray]:
+        """Material points ``(face (M,), st (M, 2))`` of the curved surface where the paint's plane coordinates are
+        ``uv_mm`` (M, 2) (a checker's corners): located on the painted flat pieces, then Newton on the curved face
+        of the reference geometry (the paint is laid on it). -1 / NaN where no painted piece holds the point."""
+        from scenes.paint import paint_coordinates_mm
+
+        target = np.asarray(uv_mm, float).reshape(-1, 2)
+        tess, lay = self.tessellation, self.layout
+        tris = np.flatnonzero(lay.painted)
+        UV = lay.uv_mm[tess.triangles[tris]]                                    # (T, 3, 2)
+        face = np.full(len(target), -1, np.int64)
+        st = np.full((len(target), 2), np.nan)
+        from scipy.spatial import cKDTree
+        tree = cKDTree(UV.mean(axis=1))
+        reach = float(np.max(np.linalg.norm(UV - UV.mean(axis=1, keepdims=True), axis=2)))
+        for i, p in enumerate(target):
+            for j in tree.query_ball_point(p, reach * 1.01):
+                A, B, C = UV[j]
+                M = np.column_stack([B - A, C - A])
+                if abs(np.linalg.det(M)) < 1e-300:
+                    continue
+                b = np.linalg.solve(M, p - A)
+                if b.min() >= -1e-9 and b.sum() <= 1 + 1e-9:
+                    t = tris[j]
+                    c = tess.triangle_st[t]
+                    face[i] = tess.triangle_face[t]
+                    st[i] = c[0] + b[0] * (c[1] - c[0]) + b[1] * (c[2] - c[0])
+                    break
+        ok = np.flatnonzero(face >= 0)
+        V = self.mesh.points_mm
+        r = lay.radius_mm
+        h = 1e-7
+        for _ in range(20):                       # Newton on uv(X(s, t)) = target, numerical Jacobian (smooth map)
+            if not len(ok):
+                break
+            f0 = paint_coordinates_mm(self.paint, self.mesh.evaluate(face[ok], st[ok], V), r)
+            J = np.empty((len(ok), 2, 2))
+            for a in range(2):
+                e = np.zeros(2)
+                e[a] = h
+                fp = paint_coordinates_mm(self.paint, self.mesh.evaluate(face[ok], st[ok] + e, V), r)
+                fm = paint_coordinates_mm(self.paint, self.mesh.evaluate(face[ok], st[ok] - e, V), r)
+                J[:, :, a] = (fp - fm) / (2 * h)
+            step = np.linalg.solve(J, (target[ok] - f0)[:, :, None])[:, :, 0]
+            st[ok] += step
+            if np.abs(step).max() < tol:
+                break
+        return face, st
+
     def surface_strain(self, face, st, k: int, reference: int = 0) -> tuple[np.ndarray, np.ndarray]:
         """Exact surface Green-Lagrange strain of state k relative to state ``reference`` at material points, in the
         tangent basis Q of the reference state (:meth:`scenes.surface_mesh.SurfaceMesh.surface_strain`); a rigid

@@ -107,6 +107,7 @@ class PaintLayout:
     shape : (rows, cols) of the texture
     stretch : (T,) how much a speckle is stretched on each triangle (1: true size; NaN unpainted)
     size_mm : (2,) the texture's extent along u and v (mm)
+    radius_mm : the wrapping cylinder's radius (None: sprayed or a plane)
     """
 
     uv_mm: np.ndarray
@@ -115,6 +116,7 @@ class PaintLayout:
     shape: tuple
     stretch: np.ndarray
     size_mm: np.ndarray
+    radius_mm: float | None = None
 
     def uv(self) -> np.ndarray:
         """(V, 2) texture coordinates in [0, 1] over the texture (``u`` along columns, ``v`` along rows)."""
@@ -142,6 +144,35 @@ def _unit(v) -> np.ndarray:
     return v / np.linalg.norm(v)
 
 
+def _cylinder_frame(paint: Paint):
+    """(axis point c, axis a, e0 towards the paint's source, e1 = a x e0) of a paint wrapped round a cylinder."""
+    d = _unit(paint.direction)
+    a = _unit(paint.axis_direction)
+    c = np.asarray(paint.axis_point_mm, float)
+    e0 = -d - (-d @ a) * a
+    if np.linalg.norm(e0) < 1e-9:
+        raise ValueError("the paint direction is along the cylinder axis; the seam cannot be placed")
+    e0 = _unit(e0)
+    return c, a, e0, np.cross(a, e0)
+
+
+def paint_coordinates_mm(paint: Paint, X_mm, radius_mm: float | None = None) -> np.ndarray:
+    """(u, v) of the paint's plane at surface points X (N, 3), specimen frame: the projection across the spray
+    (sprayed, or wrapped on a plane), or arc length ``radius * theta`` and axial position (wrapped on a cylinder of
+    ``radius_mm``: :attr:`PaintLayout.radius_mm`). The one formula of the layout's vertices and of the truth."""
+    X = np.asarray(X_mm, float).reshape(-1, 3)
+    if paint.method == "wrapped" and paint.axis_direction is not None:
+        c, a, e0, e1 = _cylinder_frame(paint)
+        rel = X - c
+        return np.column_stack([float(radius_mm) * np.arctan2(rel @ e1, rel @ e0), rel @ a])
+    d = _unit(paint.direction)
+    e1 = np.array([1.0, 0.0, 0.0]) - d[0] * d
+    if np.linalg.norm(e1) < 1e-6:
+        e1 = np.array([0.0, 1.0, 0.0]) - d[1] * d
+    e1 = _unit(e1)
+    return np.column_stack([X @ e1, X @ np.cross(d, e1)])
+
+
 def layout(paint: Paint, vertices_mm: np.ndarray, triangles: np.ndarray, source: str = "<mesh>") -> PaintLayout:
     """Texture coordinates and painted triangles of a tessellation in its reference state (specimen frame).
 
@@ -154,14 +185,12 @@ def layout(paint: Paint, vertices_mm: np.ndarray, triangles: np.ndarray, source:
     n = n / np.where(area2 > 0, area2, 1.0)[:, None]
     facing = n @ (-d)                                         # cos of the angle to the incoming paint
     painted = (facing >= np.cos(np.radians(paint.max_angle_deg))) & (area2 > 0)
+    radius = None
     if paint.method == "wrapped" and paint.axis_direction is not None:
-        a = _unit(paint.axis_direction)
-        c = np.asarray(paint.axis_point_mm, float)
-        e0 = -d - (-d @ a) * a
-        if np.linalg.norm(e0) < 1e-9:
-            raise ValueError(f"{source}: the paint direction is along the cylinder axis; the seam cannot be placed")
-        e0 = _unit(e0)
-        e1 = np.cross(a, e0)
+        try:
+            c, a, e0, e1 = _cylinder_frame(paint)
+        except ValueError as err:
+            raise ValueError(f"{source}: {err}") from None
         rel = V - c
         radial = rel - np.outer(rel @ a, a)
         rho = np.linalg.norm(radial, axis=1)
@@ -173,17 +202,12 @@ def layout(paint: Paint, vertices_mm: np.ndarray, triangles: np.ndarray, source:
         painted = lateral & ~across & (area2 > 0)
         if not painted.any():
             raise ValueError(f"{source}: no face of the mesh lies on the side of the cylinder around the given axis")
-        r = float(np.median(rho[np.unique(T[painted])]))
-        uv = np.column_stack([r * theta, rel @ a])
+        radius = float(np.median(rho[np.unique(T[painted])]))
+        uv = paint_coordinates_mm(paint, V, radius)
         stretch = np.full(len(T), np.nan)
-        stretch[painted] = rho[T[painted]].mean(axis=1) / r
+        stretch[painted] = rho[T[painted]].mean(axis=1) / radius
     else:                                         # sprayed, or a sheet wrapped on a plane (= sprayed along its normal)
-        e1 = np.array([1.0, 0.0, 0.0]) - d[0] * d
-        if np.linalg.norm(e1) < 1e-6:
-            e1 = np.array([0.0, 1.0, 0.0]) - d[1] * d
-        e1 = _unit(e1)
-        e2 = np.cross(d, e1)
-        uv = np.column_stack([V @ e1, V @ e2])
+        uv = paint_coordinates_mm(paint, V)
         stretch = np.full(len(T), np.nan)
         stretch[painted] = 1.0 / facing[painted]
     if not painted.any():
@@ -203,7 +227,7 @@ def layout(paint: Paint, vertices_mm: np.ndarray, triangles: np.ndarray, source:
         raise ValueError(f"{source}: a {cols} x {rows} texel paint texture ({texel:g} mm texels over "
                          f"{hi[0] - lo[0]:.1f} x {hi[1] - lo[1]:.1f} mm) is too large; give a larger texel_mm or "
                          f"paint less (max_angle_deg)")
-    return PaintLayout(uv, painted, lo, (rows, cols), stretch, np.array([cols, rows]) * texel)
+    return PaintLayout(uv, painted, lo, (rows, cols), stretch, np.array([cols, rows]) * texel, radius)
 
 
 def texture(paint: Paint, shape: tuple, origin_mm) -> np.ndarray:

@@ -300,6 +300,22 @@ class SurfaceMesh:
                           f"neighbours and were turned", stacklevel=2)
         return cls(P, out, source=source)
 
+    def flipped(self) -> "SurfaceMesh":
+        """The same faces with every normal reversed (an open surface turned to face the other side)."""
+        return SurfaceMesh(self.points_mm, {k: v[:, _FLIP[k]] for k, v in self.faces.items()}, source=self.source,
+                           parents=self.parents, parent_types=self.parent_types)
+
+    def mean_normal(self) -> np.ndarray:
+        """Area-weighted mean of the faces' normals (corner triangles; not normalised)."""
+        total = np.zeros(3)
+        for name, conn in self.faces.items():
+            c = self.points_mm[conn[:, :FACE_ELEMENTS[name].n_corners]]
+            if FACE_ELEMENTS[name].n_corners == 3:
+                total += np.cross(c[:, 1] - c[:, 0], c[:, 2] - c[:, 0]).sum(axis=0) / 2
+            else:
+                total += np.cross(c[:, 2] - c[:, 0], c[:, 3] - c[:, 1]).sum(axis=0) / 2
+        return total
+
     # ---- evaluation on faces
     def _face_nodes(self, face: np.ndarray) -> list[tuple[int, np.ndarray, np.ndarray]]:
         """Per family present among ``face`` (M,): (family index, positions in ``face``, node indices (m, n))."""

@@ -334,3 +334,29 @@ def test_beam_through_the_generic_path_equals_the_built_in_path():
         b, info = render_view_exact(bt.specs["left"], *bt.camera_poses["left"], ms.surfaces(k, *bt.pose))
         assert info["back_faces_culled"]
         assert np.sqrt(np.mean((a - b) ** 2)) < 0.05
+
+
+def test_external_exodus_sample_from_pyvale_reads_like_meshio_reads_it():
+    """pyvale's MOOSE plate (tests/data/pyvale, MIT): a 2-D QUAD4 model in metres. Refused as mm (named), read in m:
+    100 x 50 mm, its in-plane displacement pair completed with z = 0; every step equals meshio's own Exodus reading
+    of the same nodal variables (meshio reads the first step; netCDF4 directly gives the rest)."""
+    from pathlib import Path
+
+    import netCDF4
+
+    path = Path(__file__).parent / "data" / "pyvale" / "case18_1_out_first3.e"
+    with pytest.raises(SpecimenFileError, match=r"case18_1_out_first3.e: the mesh is 0.1 mm across read as 'mm'"):
+        read_specimen_file(path)
+    sf = read_specimen_file(path, unit="m")
+    assert sf.field_name == ("disp_x", "disp_y", "disp_z") and sf.info["two_dimensional"] == ["disp_z"]
+    assert list(sf.times) == [0.0, 5.0, 10.0] and "quad" in sf.mesh.faces
+    assert np.ptp(sf.mesh.points_mm, axis=0)[:2] == pytest.approx([100.0, 50.0])
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        back = meshio.read(path)
+    assert np.allclose(sf.displacements_mm[0][:, 0], 1000 * back.point_data["disp_x"], rtol=0, atol=0)
+    with netCDF4.Dataset(path) as ds:
+        names = [netCDF4.chartostring(r).item().strip() for r in ds.variables["name_nod_var"][:]]
+        raw_y = ds.variables[f"vals_nod_var{names.index('disp_y') + 1}"][:]
+    assert np.array_equal(sf.displacements_mm[:, :, 1], 1000 * np.asarray(raw_y))
+    assert np.all(sf.displacements_mm[:, :, 2] == 0)

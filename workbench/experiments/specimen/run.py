@@ -286,7 +286,8 @@ def _report(m: dict) -> str:
                      f"{_f(r.get('U_rmse_over_noise_floor'))} | {_f(r.get('strain_rmse_vs_filtered_ue'))} | "
                      f"{_f(r.get('strain_peak_exact_ue'))} | {_f(r.get('strain_rmse_percent_of_peak'))} | "
                      + (f"{_f(at['measured_ue'])} / {_f(at['filtered_truth_ue'])} at x = {at['X_specimen_mm'][0]:.1f}, "
-                        f"y = {at['X_specimen_mm'][1]:.1f} mm" if at else "") + " |")
+                        f"y = {at['X_specimen_mm'][1]:.1f} mm (— : the strain window there has too few points)"
+                        if at else "") + " |")
     if "cylinder" in m:
         c = m["cylinder"]
         lines += ["", f"Cylinder through the measured reference points: radius {c['radius_mm']:.4f} mm against "

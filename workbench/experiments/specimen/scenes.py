@@ -188,8 +188,12 @@ def _placed_mesh(sf, cfg) -> tuple[SurfaceMesh, np.ndarray, dict]:
         points = (P - origin) @ R.T + np.asarray(cfg.offset_mm, float)
     mesh = SurfaceMesh(points, sf.mesh.faces, source=sf.source, parents=sf.mesh.parents,
                        parent_types=sf.mesh.parent_types)
+    turned = False
+    if sf.mesh.parents is None and mesh.mean_normal()[2] > 0:
+        mesh, turned = mesh.flipped(), True        # an open surface (a shell, a 2-D model) faces the cameras (-z)
     U = sf.displacements_mm @ R.T if len(sf.displacements_mm) else np.zeros((1, len(P), 3))
-    return mesh, U, {"origin_mm_file_frame": (origin / UNITS_MM[cfg.unit]).tolist(), "R_specimen_from_file": R.tolist()}
+    return mesh, U, {"origin_mm_file_frame": (origin / UNITS_MM[cfg.unit]).tolist(), "R_specimen_from_file": R.tolist(),
+                     "open_surface_turned_to_the_cameras": turned}
 
 
 @dataclass(frozen=True)
