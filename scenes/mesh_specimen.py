@@ -28,7 +28,7 @@ import numpy as np
 
 from scenes.camera import SensorSpec
 from scenes.paint import Paint, PaintLayout, layout, texture
-from scenes.ray_surface import cast_rays, refine_on_surface, visible_from
+from scenes.ray_surface import cast_rays, pixel_centre_rays, refine_on_surface, visible_from
 from scenes.surface_mesh import SurfaceMesh, Tessellation
 from scenes.surfaces import TexturedSurface
 
@@ -159,8 +159,6 @@ class MeshSpecimen:
         """Per pixel of one camera's image of state k: the material point seen and why it cannot be measured
         (``NO_SURFACE``, ``BACK_SIDE``, ``GRAZING``, ``UNPAINTED``; visibility in other views is added by
         :meth:`pixel_truth`)."""
-        from scenes.truth import pixel_rays
-
         V = self.vertices_world(k, R_world_from_specimen, t_world_from_specimen_mm)
         hits = cast_rays(spec, R_cam_from_world, t_cam_from_world_mm, V, self.tessellation.triangles)
         H, W = hits.triangle.shape
@@ -176,15 +174,19 @@ class MeshSpecimen:
         corners = self.tessellation.triangle_st[tri]                      # (M, 3, 2)
         st0 = corners[:, 0] + b[:, :1] * (corners[:, 1] - corners[:, 0]) + b[:, 1:] * (corners[:, 2] - corners[:, 0])
         f = self.tessellation.triangle_face[tri]
-        o, d = pixel_rays(spec, R_cam_from_world, t_cam_from_world_mm, np.column_stack([cols, rows]).astype(float))
+        Rc = np.asarray(R_cam_from_world, float)
+        tc = np.asarray(t_cam_from_world_mm, float).reshape(3)
+        xy = pixel_centre_rays(spec)[rows, cols]                     # cached undistorted pixel-centre rays
+        d = np.column_stack([xy, np.ones(len(xy))]) @ Rc               # world directions (rows: R^T d_cam)
+        d /= np.linalg.norm(d, axis=1, keepdims=True)
+        o = np.repeat((-Rc.T @ tc)[None], len(d), axis=0)
         R, t = self.state_pose(k, R_world_from_specimen, t_world_from_specimen_mm)
-        st1, X = refine_on_surface(self.mesh, f, st0, self.displacements_mm[k], o, d, R, t)
+        st1, X, n = refine_on_surface(self.mesh, f, st0, self.displacements_mm[k], o, d, R, t, with_normals=True)
         good = np.all(np.isfinite(st1), axis=1)
         face[rows[good], cols[good]] = f[good]
         st[rows[good], cols[good]] = st1[good]
         mask[rows[~good], cols[~good]] |= NO_SURFACE
-        n = self.mesh.normals(f[good], st1[good], self.displacements_mm[k]) @ R.T
-        cos_view = -np.einsum("ij,ij->i", n, d[good])
+        cos_view = -np.einsum("ij,ij->i", n[good], d[good])
         graze = cos_view < np.cos(np.radians(grazing_limit_deg))
         mask[rows[good][graze], cols[good][graze]] |= GRAZING
         unpainted = ~self.layout.painted[tri[good]]

@@ -46,7 +46,8 @@ def test_render_specimen_writes_a_dataset_whose_truth_is_the_analytic_plate(tmp_
     assert main(["render", "specimen", str(scenario), "--out", str(tmp_path / "out")]) == 0
     assert "left reference:" in capsys.readouterr().out
     ds = open_dataset(tmp_path / "out")
-    assert ds.kind == "specimen" and ds.n_states == 3 and ds.labels[1] == "step 1 (t = 1)"
+    assert ds.kind == "specimen" and ds.n_states == 4 and ds.labels[1] == "step 1 (t = 1)"
+    assert ds.labels[3] == "static: state 0 again"
     doc = json.loads((tmp_path / "out" / "truth.json").read_text())
     R0, t0 = np.array(doc["R_world_from_specimen"]), np.array(doc["t_world_from_specimen_mm"])
     spec_cam = doc["cameras"]["left"]
@@ -63,8 +64,9 @@ def test_render_specimen_writes_a_dataset_whose_truth_is_the_analytic_plate(tmp_
     o_s, d_s = (o - t0) @ R0, d @ R0
     lam = -o_s[:, 2] / d_s[:, 2]
     X = o_s + lam[:, None] * d_s + shift                     # on the plate's face z = 0 (specimen frame)
-    for k in range(3):
-        expected = (X + X @ A[k].T + B[k]) @ R0.T + t0
+    for k in range(4):
+        a, b = (A[k], B[k]) if k < 3 else (A[0], B[0])      # the static state repeats state 0
+        expected = (X + X @ a.T + b) @ R0.T + t0
         assert np.abs(pt.X_left_mm[k] - expected).max() < 1e-9
 
 
