@@ -45,6 +45,8 @@ class Paint:
     seam_margin_deg : ``wrapped`` cylinder: faces within this of the seam (opposite ``-direction``) stay unpainted
     base_grey : radiance of unpainted faces, in [0, 1]
     seed : speckle seed
+    angle_deg : the pattern turned by this angle in its (u, v) plane (a checker whose lines are not along the
+        image axes: corner estimators degrade on axis-aligned edges)
     """
 
     kind: str = "speckle"
@@ -62,6 +64,7 @@ class Paint:
     seam_margin_deg: float = 10.0
     base_grey: float = 0.5
     seed: int = 0
+    angle_deg: float = 0.0
 
     def __post_init__(self):
         if self.kind not in PAINT_KINDS:
@@ -164,13 +167,18 @@ def paint_coordinates_mm(paint: Paint, X_mm, radius_mm: float | None = None) -> 
     if paint.method == "wrapped" and paint.axis_direction is not None:
         c, a, e0, e1 = _cylinder_frame(paint)
         rel = X - c
-        return np.column_stack([float(radius_mm) * np.arctan2(rel @ e1, rel @ e0), rel @ a])
-    d = _unit(paint.direction)
-    e1 = np.array([1.0, 0.0, 0.0]) - d[0] * d
-    if np.linalg.norm(e1) < 1e-6:
-        e1 = np.array([0.0, 1.0, 0.0]) - d[1] * d
-    e1 = _unit(e1)
-    return np.column_stack([X @ e1, X @ np.cross(d, e1)])
+        uv = np.column_stack([float(radius_mm) * np.arctan2(rel @ e1, rel @ e0), rel @ a])
+    else:
+        d = _unit(paint.direction)
+        e1 = np.array([1.0, 0.0, 0.0]) - d[0] * d
+        if np.linalg.norm(e1) < 1e-6:
+            e1 = np.array([0.0, 1.0, 0.0]) - d[1] * d
+        e1 = _unit(e1)
+        uv = np.column_stack([X @ e1, X @ np.cross(d, e1)])
+    if paint.angle_deg:
+        c, s = np.cos(np.radians(paint.angle_deg)), np.sin(np.radians(paint.angle_deg))
+        uv = uv @ np.array([[c, s], [-s, c]])               # the pattern turned by +angle
+    return uv
 
 
 def layout(paint: Paint, vertices_mm: np.ndarray, triangles: np.ndarray, source: str = "<mesh>") -> PaintLayout:
@@ -195,7 +203,12 @@ def layout(paint: Paint, vertices_mm: np.ndarray, triangles: np.ndarray, source:
         radial = rel - np.outer(rel @ a, a)
         rho = np.linalg.norm(radial, axis=1)
         theta = np.arctan2(rel @ e1, rel @ e0)
-        lateral = np.abs(n @ a) < np.sin(np.radians(30.0))    # the cylinder's side, not its ends
+        centre = V[T].mean(axis=1) - c
+        out = centre - np.outer(centre @ a, a)
+        out /= np.maximum(np.linalg.norm(out, axis=1, keepdims=True), 1e-300)
+        # the sheet lies on the outside of the cylinder's side: faces looking away from the axis (not its ends, not
+        # a tube's bore)
+        lateral = np.einsum("ij,ij->i", n, out) > np.cos(np.radians(30.0))
         tri_theta = theta[T]
         seam = np.radians(180.0 - paint.seam_margin_deg)
         across = (np.ptp(tri_theta, axis=1) > np.pi) | (np.abs(tri_theta).max(axis=1) > seam)

@@ -112,3 +112,16 @@ def test_rigid_move_of_the_plate_is_measured_without_bias(tmp_path):
     assert out["coords"]["state"] == [1, 2]            # the move, then the static repeat of state 0
     assert m["points_fraction"][0] == 1.0
     assert m["mean_displacement_error_um"][0] < 2.0
+
+
+def test_speckle_finer_than_two_pixels_is_warned(tmp_path):
+    """Speckles of 0.1 mm on the plate image at ~0.3 px at scale 0.1: the scene is set up with a warning naming
+    the file, the camera and the size (aliasing; 3-5 px is good practice)."""
+    from workbench.config import load_config
+    from workbench.experiments.specimen.scenes import specimen_truth
+    from workbench.scenario import Scenario, with_specimen_paths
+
+    path = _scenario(tmp_path, extra="speckle_mm = 0.1\ntexel_mm = 0.02\n")
+    scenario = with_specimen_paths(load_config(Scenario, path), tmp_path)
+    with pytest.warns(UserWarning, match=r"plate.e in the left camera: speckles of 0.1 mm image at 0.\d+ px \(< 2 px"):
+        specimen_truth(scenario)
