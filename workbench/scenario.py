@@ -272,6 +272,10 @@ SPECKLE_RENDERER_TAGS = {
     "auto": "polygon-quadrature/2 order 6, thin lens in focus <= 0.1 px + mitsuba-adaptive, else mitsuba",
     "mitsuba": "mitsuba"}
 
+#: The specimen path's version (tessellation, paint layout, truth maps): a change that alters a specimen
+#: dataset's images or truth files gets a new one, so stored datasets are not reused across it.
+SPECIMEN_RENDER_VERSION = "mesh-specimen/2"
+
 #: Which sections of a scenario change the images of each dataset it renders.
 DATASET_SECTIONS = {
     "dic2d": {"images": ("experiment", "seed", "render", "speckle", "image2d")},
@@ -298,6 +302,7 @@ def dataset_parts(scenario: Scenario) -> dict[str, tuple[str, dict]]:
             # the file's content, not where it lies
             content["specimen"] = {**content["specimen"], "mesh": Path(scenario.specimen.mesh).name}
             content["specimen_file_sha256"] = file_sha256(scenario.specimen.mesh)
+            content["specimen_renderer"] = SPECIMEN_RENDER_VERSION
         out[part] = (hash_of(content), content)
     return out
 
