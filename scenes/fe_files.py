@@ -138,6 +138,19 @@ def read_specimen_file(path, *, unit: str = "mm", displacement: str | tuple | No
         return SpecimenFile(mesh, np.zeros((0, len(points), 3)), np.zeros(0), np.zeros(0, np.int64), None, path, unit,
                             info)
     chosen = _choose_steps(path, file_times, steps, times)
+    if displacement is None:
+        from scenes.fields import displacement_field_name
+        try:
+            displacement_field_name(fields[0], len(points), None, path)
+        except ValueError as err:
+            if "missing" in str(err):       # fields, none of them a displacement: a rigid specimen, said
+                import warnings
+                warnings.warn(f"{path}: no nodal field is named like a displacement (fields: "
+                              f"{', '.join(sorted(fields[0]))}); the specimen is rigid unless you name its field",
+                              stacklevel=2)
+                info["no_displacement_field"] = True
+                return SpecimenFile(mesh, np.zeros((0, len(points), 3)), np.zeros(0), np.zeros(0, np.int64), None,
+                                    path, unit, info)
     name = _pick_field(path, fields[0], len(points), displacement)
     U = np.stack([_field_vector(path, fields[k], name, len(points), k) for k in chosen]) * scale
     return SpecimenFile(mesh, U, np.asarray(file_times)[chosen], np.asarray(chosen, np.int64), name, path, unit, info)
@@ -269,7 +282,9 @@ def _from_meshio(path: str, mesh):
         found = ", ".join(sorted({b.type for b in mesh.cells})) or "no cells"
         raise SpecimenFileError(f"{path}: no faces or volume cells of a supported type (surface: "
                                 f"{', '.join(FACE_ELEMENTS)}; volume: {', '.join(VOLUME_TYPES)}); the file has: {found}")
-    fields = [dict(mesh.point_data)] if mesh.point_data else []
+    # meshio's bookkeeping arrays (gmsh:dim_tags, medit:ref, ...) are not fields of the result
+    data = {k: v for k, v in mesh.point_data.items() if ":" not in k}
+    fields = [data] if data else []
     return points, cells, fields, np.zeros(len(fields))
 
 

@@ -1106,8 +1106,8 @@ def displacement_field_name(point_data: dict, n_points: int, name, source: str) 
     if not named and not named_triplets and len(vectors) == 1:
         return vector(vectors[0])
     what = "ambiguous" if (len(named) > 1 or len(vectors) > 1 or len(named_triplets) > 1) else "missing"
-    raise ValueError(f"{source}: nodal displacement {what}; pass displacement_name= one of the point data arrays "
-                     f"(available point data: {describe()})")
+    raise ValueError(f"{source}: nodal displacement {what}; name it (displacement_name=, or a specimen's field =) "
+                     f"among the point data arrays (available point data: {describe()})")
 
 
 def displacement_array(point_data: dict, n_points: int, name, source: str) -> np.ndarray:

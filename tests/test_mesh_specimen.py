@@ -360,3 +360,31 @@ def test_external_exodus_sample_from_pyvale_reads_like_meshio_reads_it():
         raw_y = ds.variables[f"vals_nod_var{names.index('disp_y') + 1}"][:]
     assert np.array_equal(sf.displacements_mm[:, :, 1], 1000 * np.asarray(raw_y))
     assert np.all(sf.displacements_mm[:, :, 2] == 0)
+
+
+@pytest.mark.parametrize("fmt, suffix", [("gmsh", ".msh"), ("abaqus", ".inp")])
+def test_gmsh_and_abaqus_files_written_by_meshio(tmp_path, fmt, suffix):
+    """A tetra10 box written by meshio as Gmsh .msh and Abaqus .inp reads back as the same curved outer surface
+    (1000 mm^3, watertight) with meshio's own node coordinates."""
+    m = _box("tetra10")
+    path = tmp_path / f"box{suffix}"
+    meshio.write(path, meshio.Mesh(m.points, m.cells), file_format=fmt)
+    sf = read_specimen_file(path)
+    back = meshio.read(path)
+    assert np.allclose(sf.mesh.points_mm, back.points[:, :3])
+    assert "triangle6" in sf.mesh.faces and sf.displacements_mm.shape[0] == 0
+    tess = sf.mesh.tessellate(2)
+    tm = trimesh.Trimesh(sf.mesh.tessellation_positions(tess), tess.triangles, process=False)
+    assert tm.is_watertight and tm.volume == pytest.approx(1000.0, rel=1e-12)
+
+
+def test_pvd_member_with_another_mesh_is_refused(tmp_path):
+    """A .pvd whose second step is on another mesh (a moving or remeshed result) is refused naming the member."""
+    a, b = _box("tetra"), _box("hexahedron")
+    meshio.write(tmp_path / "s0.vtu", meshio.Mesh(a.points, a.cells, point_data={"displacement": 0 * a.points}))
+    meshio.write(tmp_path / "s1.vtu", meshio.Mesh(b.points * 1.01, b.cells, point_data={"displacement": 0 * b.points}))
+    (tmp_path / "r.pvd").write_text('<?xml version="1.0"?><VTKFile type="Collection"><Collection>'
+                                    '<DataSet timestep="0" file="s0.vtu"/><DataSet timestep="1" file="s1.vtu"/>'
+                                    '</Collection></VTKFile>')
+    with pytest.raises(SpecimenFileError, match=r"r.pvd: s1.vtu has another mesh than the first step"):
+        read_specimen_file(tmp_path / "r.pvd")

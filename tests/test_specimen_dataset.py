@@ -125,3 +125,34 @@ def test_speckle_finer_than_two_pixels_is_warned(tmp_path):
     scenario = with_specimen_paths(load_config(Scenario, path), tmp_path)
     with pytest.warns(UserWarning, match=r"plate.e in the left camera: speckles of 0.1 mm image at 0.\d+ px \(< 2 px"):
         specimen_truth(scenario)
+
+
+def test_specimen_through_export_stereo_and_score_clis(tmp_path, capsys):
+    """The README's path for a specimen of one's own: render, export (calibration + images), `workbench stereo`, then
+    `workbench score` of its state CSVs against the FE truth: every state scored, the 3-D error of the plate's
+    linear field (0.1 % strain, 30-60 um of motion) within 10 um RMS at scale 0.2 (the instrument, the true rig)."""
+    import json as _json
+
+    from workbench.cli import main
+
+    scenario = _scenario(tmp_path, scale=0.2)
+    data, ex, st, sc = (tmp_path / n for n in ("data", "export", "stereo", "score"))
+    assert main(["render", "specimen", str(scenario), "--out", str(data)]) == 0
+    assert main(["export", str(data), "--format", "native", "--out", str(ex)]) == 0
+    images = sorted(p.name for p in ex.iterdir() if p.suffix == ".png")
+    left = [n for n in images if n.startswith("left")]
+    right = [n for n in images if n.startswith("right")]
+    assert len(left) == 4 and len(right) == 4
+    assert main(["stereo", "--calib", str(ex / "calibration.json"), "--left-ref", str(ex / left[0]),
+                 "--right-ref", str(ex / right[0]), "--left", str(ex / "left_0[1-3]*"),
+                 "--right", str(ex / "right_0[1-3]*"), "--subset", "33", "--step", "12", "--auto-roi",
+                 "--out", str(st)]) == 0
+    results = sorted(str(p) for p in st.glob("state_*.csv"))
+    assert len(results) == 3
+    capsys.readouterr()
+    # workbench stereo numbers the deformed images from 0: its state_000.csv is the dataset's state 1
+    assert main(["score", str(data), results[0], "--state", "1", "--out", str(sc)]) == 0
+    m = _json.loads((sc / "metrics.json").read_text())
+    state = m["states"][0]
+    assert state["valid_points"] > 100
+    assert state["rms_um"] < 10.0

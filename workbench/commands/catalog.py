@@ -9,16 +9,6 @@ from pathlib import Path
 
 from workbench.commands.options import output_folder, scale_arg
 
-#: Per specimen: the [specimen] table of its scenario beyond the file (paint, placement).
-SCENARIO_EXTRAS = {
-    "plate_with_hole": {},
-    "notched_coupon": {},
-    # a printed sheet wrapped on the tube (its axis: the specimen frame's y axis through z = R)
-    "pressurised_cylinder": {"paint_method": "wrapped", "axis_point_mm": [0.0, 0.0, 57.0],
-                             "axis_direction": [0.0, 1.0, 0.0]},
-    "beam": {},
-}
-
 
 def add_parser(sub) -> None:
     from scenes.fe_catalog import CATALOG
@@ -30,20 +20,12 @@ def add_parser(sub) -> None:
     ca.add_argument("--out", type=Path, required=True, help="a new folder")
 
 
-def scenario_text(name: str, file_name: str, scale: float, extras: dict | None = None) -> str:
-    """The scenario TOML of a catalog specimen."""
-    from workbench.config import dumps_toml
-
-    specimen = {"mesh": file_name, **SCENARIO_EXTRAS[name], **(extras or {})}
-    doc = {"experiment": "specimen", "seed": 0, "rig": {"name": "paper", "scale": scale}, "specimen": specimen}
-    return f"# {name}: rendered by `workbench render specimen scenario.toml --out DIR`\n" + dumps_toml(doc)
-
-
 def catalog_command(args) -> int:
     import json
 
     from labio.atomic import atomic_write_text
     from scenes.fe_catalog import CATALOG, write_pvd
+    from workbench.experiments.specimen.catalog import scenario_text
 
     output_folder(args.out)
     result = CATALOG[args.name]()
