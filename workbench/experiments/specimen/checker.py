@@ -91,6 +91,8 @@ def checker_corner_agreement(scale: float = 1.0, *, square_mm: float = 2.0, arc_
     return {"corners": int(len(dist)), "mean_px": float(dist.mean()), "max_px": float(dist.max()),
             "rms_px": float(np.sqrt(np.mean(dist ** 2))), "mean_offset_px": err.mean(axis=0).tolist(),
             "arc_deg": [float(np.min(used_theta)), float(np.max(used_theta))], "render_s": round(render_s, 2),
+            "worst_corner_arc_deg": float(np.asarray(used_theta)[int(np.argmax(dist))]),
+            "max_px_within_40deg": float(dist[np.abs(np.asarray(used_theta)) <= 40].max()),
             "renderer": auto.renderer, "known_fraction": float(auto.known_fraction),
             "pieces_per_face_edge": int(specimen.tessellation.n), "image_size": [spec.width, spec.height],
             "square_px": float(square_mm / footprint)}
