@@ -57,13 +57,12 @@ def main(argv=None) -> int:
     import warnings
     warnings.simplefilter("ignore")
     t0 = time.perf_counter()
-    from scenes.mesh_specimen import MeshSpecimen  # noqa: F401  (import cost counted)
-    from workbench.experiments.specimen.scenes import _build
+    from workbench.experiments.specimen.scenes import build_specimen
     from workbench.experiments.bending.scenes import bending_specs
     from workbench.rigs import get_rig
 
     start = time.perf_counter()
-    built = _build(scenario)
+    built = build_specimen(scenario)
     figures["read_place_paint_s"] = time.perf_counter() - start
     spec = built.specimen
     figures["surface_triangles"] = int(len(spec.tessellation.triangles))

@@ -503,7 +503,6 @@ def _reference_grid(kind: str, n: int):
     pts, where = [], []
     index = {}
     if kind == "triangle":
-        cs = [(0, 0), (n, 0), (0, n)]
         for j in range(n + 1):
             for i in range(n + 1 - j):
                 index[(i, j)] = len(pts)
@@ -515,7 +514,6 @@ def _reference_grid(kind: str, n: int):
                 tris.append((index[(i, j)], index[(i + 1, j)], index[(i, j + 1)]))
                 if i + j < n - 1:
                     tris.append((index[(i + 1, j)], index[(i + 1, j + 1)], index[(i, j + 1)]))
-        del cs
     else:
         for j in range(n + 1):
             for i in range(n + 1):

@@ -2,8 +2,6 @@
 hole in a long strip, the notched coupon's equilibrium, and the exact volumes of the curved geometries."""
 from __future__ import annotations
 
-import json
-
 import numpy as np
 import pytest
 import trimesh

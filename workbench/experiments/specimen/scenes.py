@@ -25,15 +25,13 @@ from pathlib import Path
 import numpy as np
 
 from labio.atomic import atomic_writer, atomic_write_text
-from scenes.camera import SensorSpec
 from scenes.fe_files import read_specimen_file
-from scenes.mesh_specimen import HIDDEN, MASK_BITS, MeshSpecimen, PixelTruth, warn_if_aliased
+from scenes.mesh_specimen import MASK_BITS, MeshSpecimen, PixelTruth, warn_if_aliased
 from scenes.noise import SensorNoise
 from scenes.paint import Paint
 from scenes.surface_mesh import SurfaceMesh
-from workbench.experiments.calibration.views import sensor_spec_for
 from workbench.manifest import complete_folder, prepare_folder
-from workbench.rigs import StereoRig, get_rig
+from workbench.rigs import get_rig
 
 SIDES = ("left", "right")
 KIND = "specimen"
@@ -197,7 +195,11 @@ def _placed_mesh(sf, cfg) -> tuple[SurfaceMesh, np.ndarray, dict]:
 
 
 @dataclass(frozen=True)
-class _Built:
+class BuiltSpecimen:
+    """A scenario's specimen before cameras: the painted FE surface with its states, the state labels, its pose
+    (R_world_from_specimen, t_world_from_specimen_mm), the pixel footprint at the working distance (mm), the file
+    read, the placement record and the rigid moves."""
+
     specimen: MeshSpecimen
     labels: list
     pose: tuple
@@ -207,7 +209,7 @@ class _Built:
     rigid: list
 
 
-def _build(scenario) -> _Built:
+def build_specimen(scenario) -> BuiltSpecimen:
     """Read, place, paint the scenario's specimen and give its states (no cameras, no truth maps)."""
     from workbench.experiments.rigid_motion.scenes import specimen_reference_pose
 
@@ -239,7 +241,7 @@ def _build(scenario) -> _Built:
                   axis_direction=cfg.axis_direction, max_angle_deg=cfg.max_paint_angle_deg, base_grey=cfg.base_grey,
                   seed=scenario.seed)
     specimen = MeshSpecimen(mesh, U, paint, sagitta_mm=cfg.sagitta_px * footprint_mm, rigid_poses=rigid)
-    return _Built(specimen, labels, (R0, t0), footprint_mm, sf, placement, rigid)
+    return BuiltSpecimen(specimen, labels, (R0, t0), footprint_mm, sf, placement, rigid)
 
 
 def specimen_truth(scenario, *, progress: bool = False) -> SpecimenTruth:
@@ -249,7 +251,7 @@ def specimen_truth(scenario, *, progress: bool = False) -> SpecimenTruth:
     from workbench.experiments.bending.scenes import bending_specs
 
     cfg = scenario.specimen
-    built = _build(scenario)
+    built = build_specimen(scenario)
     specimen, sf, (R0, t0), paint = built.specimen, built.source, built.pose, built.specimen.paint
     rig = get_rig(scenario.rig.name, scenario.rig.scale)
     labels, placement, rigid, footprint_mm = built.labels, built.placement, built.rigid, built.footprint_mm
@@ -431,5 +433,5 @@ def load_specimen_truth(folder) -> SpecimenTruth:
 
 def _rebuild(scenario, specs, camera_poses) -> SpecimenTruth:
     """The specimen and pose of a scenario without the per-pixel maps (they are read from the dataset)."""
-    built = _build(scenario)
+    built = build_specimen(scenario)
     return SpecimenTruth(built.specimen, specs, camera_poses, built.pose, built.labels)
