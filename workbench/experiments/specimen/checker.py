@@ -18,8 +18,11 @@ import numpy as np
 
 def checker_corner_agreement(scale: float = 1.0, *, square_mm: float = 2.0, arc_deg: float = 50.0,
                              distance_mm: float = 420.0, sagitta_px: float = 0.02, angle_deg: float = 20.0,
-                             seed: int = 0) -> dict:
+                             half_size_px: float | None = None, seed: int = 0, image=None) -> dict:
     """Render the left view of the checkered tube and compare every corner within +-``arc_deg`` of arc.
+
+    ``half_size_px``: the corner fit's window half-width (default: the instrument's, 0.35 x the corner spacing within
+    [3, 15] px). ``image``: a render of this scene to reuse (``result["image"]`` of an earlier call).
 
     Returns ``{"corners", "mean_px", "max_px", "rms_px", "mean_offset_px" (2,), "arc_deg" [min, max] of the corners
     used, "render_s", "renderer", "known_fraction", "pieces_per_face_edge", "image_size"}``.
@@ -51,10 +54,13 @@ def checker_corner_agreement(scale: float = 1.0, *, square_mm: float = 2.0, arc_
     footprint = distance_mm / spec.fx
     specimen = MeshSpecimen(mesh, fe.displacements_mm[:1], paint, sagitta_mm=sagitta_px * footprint)
     start = time.perf_counter()
-    auto = render_views_auto([(spec, (R_c, t_c))], specimen.surfaces(0, R0, t0), seed=seed, exposure_grey=255.0,
-                             settings=AdaptiveSettings(target_mc_grey=0.1))[0]
+    if image is None:
+        auto = render_views_auto([(spec, (R_c, t_c))], specimen.surfaces(0, R0, t0), seed=seed, exposure_grey=255.0,
+                                 settings=AdaptiveSettings(target_mc_grey=0.1))[0]
+        image, renderer, known = auto.image_grey, auto.renderer, float(auto.known_fraction)
+    else:
+        image, renderer, known = image["image"], image["renderer"], image["known_fraction"]
     render_s = time.perf_counter() - start
-    image = auto.image_grey
     # the corners: multiples of the square in the (turned) paint plane, within the arc and the tube's length
     r = specimen.layout.radius_mm
     reach = np.radians(arc_deg + 10) * r + 0.5 * fe.info["length_mm"]
@@ -81,7 +87,8 @@ def checker_corner_agreement(scale: float = 1.0, *, square_mm: float = 2.0, arc_
     found, true_xy, used_theta = [], [], []
     for i, j in centres:
         block = t_grid[i - 1:i + 2, j - 1:j + 2].reshape(-1, 2)
-        refined = refine_corners_saddle(image, block + np.array([0.3, -0.3]), pattern_size=(3, 3))
+        refined = refine_corners_saddle(image, block + np.array([0.3, -0.3]), pattern_size=(3, 3),
+                                        half_size_px=half_size_px)
         found.append(refined[4])
         true_xy.append(block[4])
         used_theta.append(theta.reshape(I.shape)[i, j])
@@ -93,6 +100,7 @@ def checker_corner_agreement(scale: float = 1.0, *, square_mm: float = 2.0, arc_
             "arc_deg": [float(np.min(used_theta)), float(np.max(used_theta))], "render_s": round(render_s, 2),
             "worst_corner_arc_deg": float(np.asarray(used_theta)[int(np.argmax(dist))]),
             "max_px_within_40deg": float(dist[np.abs(np.asarray(used_theta)) <= 40].max()),
-            "renderer": auto.renderer, "known_fraction": float(auto.known_fraction),
+            "renderer": renderer, "known_fraction": known, "half_size_px": half_size_px,
+            "image": {"image": image, "renderer": renderer, "known_fraction": known},
             "pieces_per_face_edge": int(specimen.tessellation.n), "image_size": [spec.width, spec.height],
             "square_px": float(square_mm / footprint)}
