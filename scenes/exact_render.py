@@ -381,8 +381,8 @@ def render_view_occluded(spec: SensorSpec, R_cam_from_world: np.ndarray, t_cam_f
     Carlo wherever no occlusion edge passes.
 
     The truth side's ray cast (:func:`scenes.ray_surface.cast_rays`) gives the nearest depth at every pixel centre;
-    a face whose plane lies behind that depth at every pixel it can touch (its footprint widened by 1.5 px) is
-    hidden and dropped (:func:`scenes.ray_surface.possibly_visible`). The rest is drawn exactly as by
+    a face no pixel-centre ray hits and whose plane lies behind that depth at every pixel of its widened projected box
+    is hidden and dropped (:func:`scenes.ray_surface.possibly_visible`). The rest is drawn exactly as by
     :func:`render_view_exact`, overlaps allowed: a pixel is *known* unless its 3 x 3 neighbourhood holds a pixel
     covered more than once (an occluding edge over the surface behind it) or a depth jump of more than
     :data:`OCCLUSION_JUMP_FOOTPRINTS` pixel footprints between neighbouring pixel centres (an occluding edge over
@@ -413,7 +413,7 @@ def render_view_occluded(spec: SensorSpec, R_cam_from_world: np.ndarray, t_cam_f
         hits = cast_rays(spec, R, t, V, F)
     except ValueError as err:                     # a surface behind the camera
         raise NotExactError(str(err)) from None
-    visible = possibly_visible(spec, R, t, V, F, hits.depth_mm)
+    visible = possibly_visible(spec, R, t, V, F, hits.depth_mm, hits.triangle)
     drawn, start = [], 0
     for c in candidates:
         d = np.zeros(len(c), dtype=bool)

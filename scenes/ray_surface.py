@@ -158,7 +158,7 @@ def cast_rays(spec: SensorSpec, R_cam_from_world, t_cam_from_world_mm, vertices_
 
 
 @numba.njit(cache=True)
-def _possibly_visible(A, B, C, boxes, rays, depth, keep, slack_px):
+def _possibly_visible(A, B, C, boxes, rays, depth, keep, rel_tol, abs_tol_mm):
     H, W = depth.shape
     for k in range(A.shape[0]):
         ax, ay, az = A[k, 0], A[k, 1], A[k, 2]
@@ -168,33 +168,19 @@ def _possibly_visible(A, B, C, boxes, rays, depth, keep, slack_px):
         ny = e1z * e2x - e1x * e2z
         nz = e1x * e2y - e1y * e2x
         x0, y0, x1, y1 = boxes[k, 0], boxes[k, 1], boxes[k, 2], boxes[k, 3]
-        size = max(x1 - x0, y1 - y0, 1)
-        tol = slack_px / size                  # barycentric slack: about slack_px around the triangle
         found = False
         for r in range(max(y0, 0), min(y1, H)):
             for c in range(max(x0, 0), min(x1, W)):
                 dx, dy = rays[r, c, 0], rays[r, c, 1]
                 if dx != dx:
                     continue
-                px = dy * e2z - e2y
-                py = e2x - dx * e2z
-                pz = dx * e2y - dy * e2x
-                det = e1x * px + e1y * py + e1z * pz
-                if det == 0.0:
-                    continue
-                inv = 1.0 / det
-                u = (-ax * px - ay * py - az * pz) * inv
-                qx = -ay * e1z + az * e1y
-                qy = -az * e1x + ax * e1z
-                qz = -ax * e1y + ay * e1x
-                v = (dx * qx + dy * qy + qz) * inv
-                if u < -tol or v < -tol or u + v > 1.0 + tol:
-                    continue
                 dn = nx * dx + ny * dy + nz
                 if dn == 0.0:
                     continue
+                # the triangle's plane along this pixel's ray, anywhere in its (widened) box: a thin sliver covering
+                # no pixel centre is still kept where its plane is not behind what the pixel sees
                 d_plane = (nx * ax + ny * ay + nz * az) / dn
-                if d_plane > 0.0 and d_plane <= depth[r, c] * (1.0 + 1e-9) + 1e-9:
+                if d_plane > 0.0 and d_plane <= depth[r, c] * (1.0 + rel_tol) + abs_tol_mm:
                     found = True
                     break
             if found:
@@ -203,9 +189,13 @@ def _possibly_visible(A, B, C, boxes, rays, depth, keep, slack_px):
 
 
 def possibly_visible(spec: SensorSpec, R_cam_from_world, t_cam_from_world_mm, vertices_world_mm, triangles,
-                     depth_mm: np.ndarray, slack_px: float = 1.5) -> np.ndarray:
-    """(T,) bool: triangles whose plane is not behind the nearest depth ``depth_mm`` (:func:`cast_rays`) at some pixel
-    centre within ~``slack_px`` of them; the others are hidden behind nearer surfaces wherever they could show."""
+                     depth_mm: np.ndarray, hit_triangle: np.ndarray | None = None, abs_tol_mm: float = 1e-3
+                     ) -> np.ndarray:
+    """(T,) bool: triangles that may show somewhere: hit by a pixel-centre ray (``hit_triangle``, the ray cast's
+    triangle ids), or whose plane is not behind the nearest depth ``depth_mm`` (:func:`cast_rays`; tolerance 1e-6
+    relative + ``abs_tol_mm``) at some pixel of their projected box widened by :data:`BOX_MARGIN_PX`. The others lie
+    behind nearer surfaces wherever they could show (a tube's far wall). Conservative: a face kept needlessly only
+    costs its overlap being traced."""
     from scenes.truth import project_points
 
     R = np.asarray(R_cam_from_world, float)
@@ -225,90 +215,13 @@ def possibly_visible(spec: SensorSpec, R_cam_from_world, t_cam_from_world_mm, ve
                              np.ceil(hi[:, 1] + m) + 1])
     H, W = depth_mm.shape
     boxes = np.clip(np.nan_to_num(boxes), -1, max(H, W) + 1).astype(np.int64)
-    _possibly_visible(A, B, C, boxes, pixel_centre_rays(spec), np.asarray(depth_mm, float), keep, float(slack_px))
+    _possibly_visible(A, B, C, boxes, pixel_centre_rays(spec), np.asarray(depth_mm, float), keep, 1e-6,
+                      float(abs_tol_mm))
     keep[~ok] = True                          # cannot tell: keep (overlap is then detected and traced)
+    if hit_triangle is not None:
+        hit = np.asarray(hit_triangle)
+        keep[hit[hit >= 0]] = True
     return keep
-
-
-@numba.njit(cache=True, parallel=True)
-def _newton_family(V, conn, exps, C, rows, st, o, d, tol, iterations, st_out, X_out, n_out, ok_out):
-    """Newton on ``X(s, t) = o + lam d_i`` for points on faces ``rows`` of one family (nodes V, connectivity conn,
-    monomial exponents and coefficient matrix of its shape functions), per point in parallel."""
-    nn = conn.shape[1]
-    for i in numba.prange(rows.size):
-        r = rows[i]
-        s = st[i, 0]
-        t = st[i, 1]
-        m = np.empty(nn)
-        ms = np.empty(nn)
-        mt = np.empty(nn)
-        X = np.zeros(3)
-        Ts = np.zeros(3)
-        Tt = np.zeros(3)
-        lam = 0.0
-        done = False
-        for it in range(iterations + 1):
-            for k in range(nn):
-                es = exps[k, 0]
-                et = exps[k, 1]
-                ps = s ** es
-                pt = t ** et
-                m[k] = ps * pt
-                ms[k] = (es * s ** (es - 1) if es > 0 else 0.0) * pt
-                mt[k] = ps * (et * t ** (et - 1) if et > 0 else 0.0)
-            for c in range(3):
-                X[c] = 0.0
-                Ts[c] = 0.0
-                Tt[c] = 0.0
-            for a in range(nn):
-                Na = 0.0
-                Nsa = 0.0
-                Nta = 0.0
-                for k in range(nn):
-                    Na += m[k] * C[k, a]
-                    Nsa += ms[k] * C[k, a]
-                    Nta += mt[k] * C[k, a]
-                node = conn[r, a]
-                for c in range(3):
-                    X[c] += Na * V[node, c]
-                    Ts[c] += Nsa * V[node, c]
-                    Tt[c] += Nta * V[node, c]
-            if it == 0:
-                dd = d[i, 0] * d[i, 0] + d[i, 1] * d[i, 1] + d[i, 2] * d[i, 2]
-                lam = ((X[0] - o[i, 0]) * d[i, 0] + (X[1] - o[i, 1]) * d[i, 1] + (X[2] - o[i, 2]) * d[i, 2]) / dd
-            if done:
-                break
-            # J [ds, dt, dlam] = -res, J = [Ts, Tt, -d]
-            r0 = -(X[0] - o[i, 0] - lam * d[i, 0])
-            r1 = -(X[1] - o[i, 1] - lam * d[i, 1])
-            r2 = -(X[2] - o[i, 2] - lam * d[i, 2])
-            a00, a01, a02 = Ts[0], Tt[0], -d[i, 0]
-            a10, a11, a12 = Ts[1], Tt[1], -d[i, 1]
-            a20, a21, a22 = Ts[2], Tt[2], -d[i, 2]
-            det = (a00 * (a11 * a22 - a12 * a21) - a01 * (a10 * a22 - a12 * a20) + a02 * (a10 * a21 - a11 * a20))
-            if det == 0.0:
-                break
-            ds = (r0 * (a11 * a22 - a12 * a21) - a01 * (r1 * a22 - a12 * r2) + a02 * (r1 * a21 - a11 * r2)) / det
-            dt = (a00 * (r1 * a22 - a12 * r2) - r0 * (a10 * a22 - a12 * a20) + a02 * (a10 * r2 - r1 * a20)) / det
-            dl = (a00 * (a11 * r2 - r1 * a21) - a01 * (a10 * r2 - r1 * a20) + r0 * (a10 * a21 - a11 * a20)) / det
-            s += ds
-            t += dt
-            lam += dl
-            if abs(ds) < tol and abs(dt) < tol:
-                done = True            # one more pass evaluates X and the tangents at the converged point
-        ok_out[i] = done
-        st_out[i, 0] = s
-        st_out[i, 1] = t
-        for c in range(3):
-            X_out[i, c] = X[c]
-        nx = Ts[1] * Tt[2] - Ts[2] * Tt[1]
-        ny = Ts[2] * Tt[0] - Ts[0] * Tt[2]
-        nz = Ts[0] * Tt[1] - Ts[1] * Tt[0]
-        nl = np.sqrt(nx * nx + ny * ny + nz * nz)
-        if nl > 0:
-            n_out[i, 0] = nx / nl
-            n_out[i, 1] = ny / nl
-            n_out[i, 2] = nz / nl
 
 
 def refine_on_surface(mesh, face, st, displacement_mm, origins_world_mm, directions_world, R_world_from_specimen,

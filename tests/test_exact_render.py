@@ -380,23 +380,47 @@ def tube_state():
     return views, spec.surfaces(1, R0, t0)
 
 
+@pytest.fixture(scope="module")
+def coupon_state():
+    """The catalog's notched coupon at its highest load (its Coons-patch elements beside the notches make long thin
+    flat pieces, seen past the notch's bore), paper rig at 0.15 scale, pinhole."""
+    from scenes.fe_catalog import notched_coupon
+    from scenes.mesh_specimen import MeshSpecimen
+    from scenes.paint import Paint
+    from scenes.surface_mesh import SurfaceMesh
+    from workbench.experiments.rigid_motion.scenes import specimen_reference_pose
+
+    rig = get_rig("paper", 0.15)
+    fe = notched_coupon()
+    mesh = SurfaceMesh.from_volume_cells(fe.points_mm, {"hexahedron27": fe.cells}, "coupon")
+    R0, t0 = specimen_reference_pose(rig)
+    footprint = float(np.linalg.norm(t0)) / rig.left.fx
+    spec = MeshSpecimen(mesh, fe.displacements_mm[[0, -1]], Paint(speckle_mm=5 * footprint),
+                        sagitta_mm=0.02 * footprint)
+    views = {side: (sensor_spec_for(rig, side), rig.pose(side)) for side in ("left", "right")}
+    return views, spec.surfaces(1, R0, t0)
+
+
+@pytest.mark.parametrize("scene", ["tube_state", "coupon_state"])
 @pytest.mark.parametrize("side", ["left", "right"])
-def test_occluded_views_are_exact_off_the_occluding_edges(tube_state, side):
-    """A hollow tube: the plain exact renderer refuses it (overlap); render_view_occluded drops the hidden far wall,
-    knows >= 97 % of the lit pixels, and there equals the mean of two 256-spp Mitsuba renders within
-    sqrt(noise^2 + 0.1^2) grey RMS, mean within 4 standard errors."""
+def test_occluded_views_are_exact_off_the_occluding_edges(request, scene, side):
+    """A hollow tube, a notched coupon: the plain exact renderer refuses them (overlap); render_view_occluded drops
+    the hidden faces, knows >= 95 % of the lit pixels (faces it cannot prove hidden it keeps, their overlap traced),
+    and there equals the mean of two 256-spp Mitsuba renders
+    within sqrt(noise^2 + 0.1^2) grey RMS, mean within 4 standard errors (the coupon's long thin pieces beside the
+    notches, covering no pixel centre, were once dropped as hidden: dark wedges of ~40 grey)."""
     from scenes.exact_render import render_view_occluded
 
-    views, surfaces = tube_state
+    views, surfaces = request.getfixturevalue(scene)
     spec, pose = views[side]
     with pytest.raises(NotExactError, match=r"surfaces overlap in the image"):
         render_view_exact(spec, *pose, surfaces, exposure_grey=255.0)
     image, known, info = render_view_occluded(spec, *pose, surfaces, exposure_grey=255.0)
-    assert info["hidden_faces"] > 0 and info["known_fraction"] >= 0.97
+    assert info["hidden_faces"] > 0 and info["known_fraction"] >= 0.95
     mean, noise = _converged_mitsuba(spec, pose, surfaces)
     lit = (image > 0) | (mean > 0)
     use = known & lit
-    assert use.sum() > 0.97 * lit.sum() and np.all(image[~known] == 0)
+    assert use.sum() > 0.95 * lit.sum() and np.all(image[~known] == 0)
     diff = image - mean
     rms_noise = np.sqrt(np.mean(noise[use] ** 2))
     assert np.sqrt(np.mean(diff[use] ** 2)) <= np.hypot(rms_noise, SPECKLE_ERROR_GREY), \
