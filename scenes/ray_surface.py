@@ -224,6 +224,87 @@ def possibly_visible(spec: SensorSpec, R_cam_from_world, t_cam_from_world_mm, ve
     return keep
 
 
+@numba.njit(cache=True, parallel=True)
+def _newton_family(V, conn, exps, C, rows, st, o, d, tol, iterations, st_out, X_out, n_out, ok_out):
+    """Newton on ``X(s, t) = o + lam d_i`` for points on faces ``rows`` of one family (nodes V, connectivity conn,
+    monomial exponents and coefficient matrix of its shape functions), per point in parallel."""
+    nn = conn.shape[1]
+    for i in numba.prange(rows.size):
+        r = rows[i]
+        s = st[i, 0]
+        t = st[i, 1]
+        m = np.empty(nn)
+        ms = np.empty(nn)
+        mt = np.empty(nn)
+        X = np.zeros(3)
+        Ts = np.zeros(3)
+        Tt = np.zeros(3)
+        lam = 0.0
+        done = False
+        for it in range(iterations + 1):
+            for k in range(nn):
+                es = exps[k, 0]
+                et = exps[k, 1]
+                ps = s ** es
+                pt = t ** et
+                m[k] = ps * pt
+                ms[k] = (es * s ** (es - 1) if es > 0 else 0.0) * pt
+                mt[k] = ps * (et * t ** (et - 1) if et > 0 else 0.0)
+            for c in range(3):
+                X[c] = 0.0
+                Ts[c] = 0.0
+                Tt[c] = 0.0
+            for a in range(nn):
+                Na = 0.0
+                Nsa = 0.0
+                Nta = 0.0
+                for k in range(nn):
+                    Na += m[k] * C[k, a]
+                    Nsa += ms[k] * C[k, a]
+                    Nta += mt[k] * C[k, a]
+                node = conn[r, a]
+                for c in range(3):
+                    X[c] += Na * V[node, c]
+                    Ts[c] += Nsa * V[node, c]
+                    Tt[c] += Nta * V[node, c]
+            if it == 0:
+                dd = d[i, 0] * d[i, 0] + d[i, 1] * d[i, 1] + d[i, 2] * d[i, 2]
+                lam = ((X[0] - o[i, 0]) * d[i, 0] + (X[1] - o[i, 1]) * d[i, 1] + (X[2] - o[i, 2]) * d[i, 2]) / dd
+            if done:
+                break
+            # J [ds, dt, dlam] = -res, J = [Ts, Tt, -d]
+            r0 = -(X[0] - o[i, 0] - lam * d[i, 0])
+            r1 = -(X[1] - o[i, 1] - lam * d[i, 1])
+            r2 = -(X[2] - o[i, 2] - lam * d[i, 2])
+            a00, a01, a02 = Ts[0], Tt[0], -d[i, 0]
+            a10, a11, a12 = Ts[1], Tt[1], -d[i, 1]
+            a20, a21, a22 = Ts[2], Tt[2], -d[i, 2]
+            det = (a00 * (a11 * a22 - a12 * a21) - a01 * (a10 * a22 - a12 * a20) + a02 * (a10 * a21 - a11 * a20))
+            if det == 0.0:
+                break
+            ds = (r0 * (a11 * a22 - a12 * a21) - a01 * (r1 * a22 - a12 * r2) + a02 * (r1 * a21 - a11 * r2)) / det
+            dt = (a00 * (r1 * a22 - a12 * r2) - r0 * (a10 * a22 - a12 * a20) + a02 * (a10 * r2 - r1 * a20)) / det
+            dl = (a00 * (a11 * r2 - r1 * a21) - a01 * (a10 * r2 - r1 * a20) + r0 * (a10 * a21 - a11 * a20)) / det
+            s += ds
+            t += dt
+            lam += dl
+            if abs(ds) < tol and abs(dt) < tol:
+                done = True            # one more pass evaluates X and the tangents at the converged point
+        ok_out[i] = done
+        st_out[i, 0] = s
+        st_out[i, 1] = t
+        for c in range(3):
+            X_out[i, c] = X[c]
+        nx = Ts[1] * Tt[2] - Ts[2] * Tt[1]
+        ny = Ts[2] * Tt[0] - Ts[0] * Tt[2]
+        nz = Ts[0] * Tt[1] - Ts[1] * Tt[0]
+        nl = np.sqrt(nx * nx + ny * ny + nz * nz)
+        if nl > 0:
+            n_out[i, 0] = nx / nl
+            n_out[i, 1] = ny / nl
+            n_out[i, 2] = nz / nl
+
+
 def refine_on_surface(mesh, face, st, displacement_mm, origins_world_mm, directions_world, R_world_from_specimen,
                       t_world_from_specimen_mm, tol: float = 1e-13, iterations: int = 12, with_normals: bool = False):
     """Newton from ``(face, st)`` onto the curved surface deformed by nodal ``displacement_mm`` along each ray.

@@ -274,7 +274,7 @@ SPECKLE_RENDERER_TAGS = {
 
 #: The specimen path's version (tessellation, paint layout, truth maps): a change that alters a specimen
 #: dataset's images or truth files gets a new one, so stored datasets are not reused across it.
-SPECIMEN_RENDER_VERSION = "mesh-specimen/2"
+SPECIMEN_RENDER_VERSION = "mesh-specimen/3"
 
 #: Which sections of a scenario change the images of each dataset it renders.
 DATASET_SECTIONS = {
