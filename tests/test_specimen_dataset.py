@@ -156,3 +156,29 @@ def test_specimen_through_export_stereo_and_score_clis(tmp_path, capsys):
     state = m["states"][0]
     assert state["valid_points"] > 100
     assert state["rms_um"] < 10.0
+
+
+def test_render_through_ones_own_calibration_file(tmp_path):
+    """A scenario whose rig is a calibration file (the paper rig saved by the instrument's writer as its JSON, which
+    holds every parameter): the dataset carries the file, and its per-pixel truth equals the named paper rig's at
+    the same scale (the same cameras read back from a file) to 1e-6 in the material coordinates."""
+    from measurement.calibration.formats import save_calibration_as
+    from measurement.calibration.io import CalibratedRig
+    from workbench.cli import main
+    from workbench.experiments.specimen.scenes import load_specimen_truth
+    from workbench.rigs import get_rig
+
+    paper = get_rig("paper", 1.0)
+    save_calibration_as(CalibratedRig("rmm", paper.left, paper.right, paper.R_right_from_left,
+                                      paper.T_right_from_left_mm), tmp_path / "cal.json", "json")
+    named = _scenario(tmp_path)
+    own = tmp_path / "own.toml"
+    own.write_text(named.read_text().replace('[rig]\n', '[rig]\ncalibration = "cal.json"\n'))
+    assert main(["render", "specimen", str(named), "--out", str(tmp_path / "a")]) == 0
+    assert main(["render", "specimen", str(own), "--out", str(tmp_path / "b")]) == 0
+    assert (tmp_path / "b" / "cal.json").is_file()
+    a, b = load_specimen_truth(tmp_path / "a"), load_specimen_truth(tmp_path / "b")
+    fa, fb = a.maps["left"].face, b.maps["left"].face
+    both = (fa >= 0) & (fb >= 0)
+    assert both.sum() > 0.99 * max((fa >= 0).sum(), (fb >= 0).sum())
+    assert np.nanmax(np.abs(a.maps["left"].st[both] - b.maps["left"].st[both])) < 1e-6

@@ -238,6 +238,29 @@ def scheimpflug_design_report(f_number: float = DEFAULT_F_NUMBER,
     return out
 
 
+def rig_from_calibration(path, scale: float = 1.0) -> StereoRig:
+    """A user's own rig from their calibration file (any format the instrument reads: this project's JSON, OpenCV
+    YAML/XML, DICe, VIC-3D, MATLAB; MatchID needs the image size and is refused here) as the true rig of a render;
+    ``scale`` < 1 shrinks image size and K together. The working distance is where the optical axes meet."""
+    from pathlib import Path
+
+    from measurement.calibration.formats import load_any_calibration
+
+    if not 0 < scale <= 4:
+        raise ValueError(f"scale must be in (0, 4], got {scale}")
+    path = Path(path)
+    if not path.is_file():
+        raise ValueError(f"rig calibration {path}: no such file")
+    cal = load_any_calibration(path)
+    cams = {side: (c.scaled(scale) if scale != 1.0 else c) for side, c in (("left", cal.left), ("right", cal.right))}
+    rig = StereoRig(f"calibration:{path.name}", cams["left"], cams["right"], np.asarray(cal.R_right_from_left, float),
+                    np.asarray(cal.T_right_from_left_mm, float))
+    meeting = rig.optical_axes_meeting_point_mm()
+    if not (np.all(np.isfinite(meeting)) and meeting[2] > 0):
+        raise ValueError(f"rig calibration {path}: the optical axes do not meet in front of the cameras")
+    return replace(rig, working_distance_mm=float(np.linalg.norm(meeting)))
+
+
 def get_rig(name: str, scale: float = 1.0) -> StereoRig:
     """A rig by name; unknown names raise ``ValueError`` listing the known ones."""
     if name == "paper":

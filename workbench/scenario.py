@@ -42,6 +42,9 @@ class RigConfig:
                    choices=("pinhole", "thin"))
     f_number: float = _f(8.0, "thin-lens f-number (defocus grows as 1/N); f/2.8-f/16 in DIC practice",
                          min=0.5, max=64.0)
+    calibration: str = _f("", "specimen scenarios: a calibration file of one's own rig (this project's JSON, OpenCV, "
+                              "DICe, VIC-3D, MATLAB) as the true rig instead of 'name', scaled by 'scale'; a relative "
+                              "path is relative to the scenario file")
     focus_offset_mm: float = _f(0.0, "thin lens focused this far beyond the face centre along the line of sight "
                                      "(a focusing error; the depth of field at f/8 and 376 mm is a few mm)",
                                 min=-200.0, max=1000.0)
@@ -303,6 +306,9 @@ def dataset_parts(scenario: Scenario) -> dict[str, tuple[str, dict]]:
             content["specimen"] = {**content["specimen"], "mesh": Path(scenario.specimen.mesh).name}
             content["specimen_file_sha256"] = file_sha256(scenario.specimen.mesh)
             content["specimen_renderer"] = SPECIMEN_RENDER_VERSION
+            if scenario.rig.calibration:
+                content["rig"] = {**content.get("rig", {}), "calibration": Path(scenario.rig.calibration).name}
+                content["rig_calibration_sha256"] = file_sha256(scenario.rig.calibration)
         out[part] = (hash_of(content), content)
     return out
 
@@ -323,14 +329,17 @@ def file_sha256(path: str) -> str | None:
 
 
 def with_specimen_paths(scenario: Scenario, base_dir) -> Scenario:
-    """The scenario with its specimen file made absolute, relative to ``base_dir`` (the scenario file's folder)."""
+    """The scenario with its specimen file (and rig calibration file) made absolute, relative to ``base_dir`` (the
+    scenario file's folder)."""
     from dataclasses import replace
     from pathlib import Path
 
-    mesh = scenario.specimen.mesh
-    if not mesh or Path(mesh).is_absolute():
-        return scenario
-    return replace(scenario, specimen=replace(scenario.specimen, mesh=str((Path(base_dir) / mesh).resolve())))
+    mesh, cal = scenario.specimen.mesh, scenario.rig.calibration
+    if mesh and not Path(mesh).is_absolute():
+        scenario = replace(scenario, specimen=replace(scenario.specimen, mesh=str((Path(base_dir) / mesh).resolve())))
+    if cal and not Path(cal).is_absolute():
+        scenario = replace(scenario, rig=replace(scenario.rig, calibration=str((Path(base_dir) / cal).resolve())))
+    return scenario
 
 
 def _renderers_as_default(scenario: Scenario) -> Scenario:

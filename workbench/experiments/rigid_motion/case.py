@@ -48,6 +48,9 @@ TILT_GUESS_DEG = {"paper": {"left": (0.0, -4.0), "right": (0.0, 4.0)},
 
 def check(scenario: Scenario, instrument: Instrument | None = None) -> None:
     """Refuse what this experiment cannot render (called for every case before a study starts)."""
+    if scenario.rig.calibration:
+        raise ValueError("scenario.rig.calibration: a rig from a calibration file is for specimen scenarios "
+                         "(experiment = \"specimen\"); the rigid-motion test uses the named rigs")
     if scenario.render.bit_depth != 8:
         raise ValueError(f"scenario.render.bit_depth = {scenario.render.bit_depth}: the rigid-motion renders are "
                          "8-bit images")

@@ -57,14 +57,13 @@ def run(scenario: Scenario, instrument: Instrument, store) -> dict:
     from measurement.dic import DICSettings
     from measurement.image_io import read_grey
     from measurement.stereo_dic import StereoMatchError, measure_state, reference_shape
-    from workbench.experiments.specimen.scenes import load_specimen_truth
-    from workbench.rigs import get_rig
+    from workbench.experiments.specimen.scenes import load_specimen_truth, rig_of
 
     check(scenario, instrument)
     key, content = dataset_parts(scenario)["states"]
     images, reused = store.ensure("specimen", key, content, lambda f: render_states(scenario, f))
     truth = load_specimen_truth(images)
-    rig_true = get_rig(scenario.rig.name, scenario.rig.scale)
+    rig_true = rig_of(scenario)
     rig = CalibratedRig("rmm", rig_true.left, rig_true.right, rig_true.R_right_from_left, rig_true.T_right_from_left_mm)
     settings = DICSettings(subset_size=instrument.subset_px, step=instrument.step_px, order=instrument.shape_order,
                            interpolation=instrument.interpolation, lowpass_sigma_px=instrument.prefilter_sigma_px)

@@ -197,8 +197,7 @@ def reproduce_catalog(out_dir, names=None, *, scale: float = 0.25, subset_size: 
     from scenes.fe_catalog import CATALOG, write_pvd
     from workbench.experiments.specimen.catalog import scenario_text
     from workbench.config import load_config
-    from workbench.experiments.specimen.scenes import load_specimen_truth, render_specimen
-    from workbench.rigs import get_rig
+    from workbench.experiments.specimen.scenes import load_specimen_truth, render_specimen, rig_of
     from workbench.scenario import Scenario, dataset_parts, with_specimen_paths
     from workbench.store import DatasetStore
 
@@ -220,7 +219,7 @@ def reproduce_catalog(out_dir, names=None, *, scale: float = 0.25, subset_size: 
                                       lambda f: render_specimen(scenario, f, progress=progress, overwrite=True))
         render_s = time.perf_counter() - start
         truth = load_specimen_truth(images)
-        true = get_rig(scenario.rig.name, scenario.rig.scale)
+        true = rig_of(scenario)
         rig = CalibratedRig("rmm", true.left, true.right, true.R_right_from_left, true.T_right_from_left_mm)
         m = measure_specimen(truth, images, rig, subset_size=subset_size, step=step, window=window, progress=progress)
         m.update(name=name, dataset=str(images), reused=bool(reused), render_s=round(render_s, 1),

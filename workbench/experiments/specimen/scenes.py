@@ -43,6 +43,15 @@ class SpecimenOutOfViewError(ValueError):
     """A camera sees no measurable part of the specimen (the message names the camera)."""
 
 
+def rig_of(scenario):
+    """The true rig of a specimen scenario: the user's calibration file (``rig.calibration``) or the named rig."""
+    from workbench.rigs import rig_from_calibration
+
+    if scenario.rig.calibration:
+        return rig_from_calibration(scenario.rig.calibration, scenario.rig.scale)
+    return get_rig(scenario.rig.name, scenario.rig.scale)
+
+
 def rotation_xyz_deg(angles_deg) -> np.ndarray:
     """Rotation about x, then y, then z (deg): ``Rz Ry Rx``."""
     ax, ay, az = np.radians(np.asarray(angles_deg, float))
@@ -216,7 +225,7 @@ def build_specimen(scenario) -> BuiltSpecimen:
     cfg = scenario.specimen
     if not cfg.mesh:
         raise ValueError("scenario.specimen.mesh: no specimen file given")
-    rig = get_rig(scenario.rig.name, scenario.rig.scale)
+    rig = rig_of(scenario)
     R0, t0 = specimen_reference_pose(rig)
     footprint_mm = float(np.linalg.norm(t0)) / rig.left.fx
     sf = read_specimen_file(cfg.mesh, unit=cfg.unit, displacement=parse_field(cfg.field), steps=cfg.steps,
@@ -253,7 +262,7 @@ def specimen_truth(scenario, *, progress: bool = False) -> SpecimenTruth:
     cfg = scenario.specimen
     built = build_specimen(scenario)
     specimen, sf, (R0, t0), paint = built.specimen, built.source, built.pose, built.specimen.paint
-    rig = get_rig(scenario.rig.name, scenario.rig.scale)
+    rig = rig_of(scenario)
     labels, placement, rigid, footprint_mm = built.labels, built.placement, built.rigid, built.footprint_mm
     specs = bending_specs(rig, scenario.rig.lens, t0, scenario.rig.f_number)
     truth = SpecimenTruth(specimen, specs, {side: rig.pose(side) for side in SIDES}, (R0, t0), labels)
@@ -302,6 +311,8 @@ def render_specimen(scenario, out_dir, *, progress: bool = True, overwrite: bool
 
     src = Path(scenario.specimen.mesh)
     sources = specimen_file_set(src)              # a .pvd collection: its VTU files too
+    if scenario.rig.calibration:                  # the user's rig travels with the dataset
+        sources.append(Path(scenario.rig.calibration))
     copied = src.name
     images = [f"{side}_{k:0{digits}d}.png" for k in range(K) for side in SIDES]
     own = ["truth.json", "truth_left.npz", "truth_right.npz", "truth_states.npz"]
@@ -321,7 +332,7 @@ def render_specimen(scenario, out_dir, *, progress: bool = True, overwrite: bool
         truth, lambda k: truth.specimen.surfaces(k, *truth.pose), K, out_dir, noise, spp=r.spp, seed=scenario.seed,
         desc=f"rendering {src.name}", progress=progress, renderer=r.speckle_renderer, render_log=render_log,
         mc_log=mc_log, mc_target_grey=mc_target)
-    rig = get_rig(scenario.rig.name, scenario.rig.scale)
+    rig = rig_of(scenario)
     truth.info.update(render_info(rig, scenario.rig.scale, r.spp, scenario.seed, r.read_noise_grey, mc_target, mc_log,
                                   render_log))
     for path in sources:
@@ -419,6 +430,9 @@ def load_specimen_truth(folder) -> SpecimenTruth:
     mesh_file = folder / raw["specimen_file"]
     from dataclasses import replace
     scenario = replace(scenario, specimen=replace(scenario.specimen, mesh=str(mesh_file)))
+    if scenario.rig.calibration:                  # the copy in the dataset
+        scenario = replace(scenario, rig=replace(scenario.rig,
+                                                 calibration=str(folder / Path(scenario.rig.calibration).name)))
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")            # said when the dataset was made
         truth = _rebuild(scenario, specs, camera_poses)
