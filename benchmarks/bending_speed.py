@@ -23,7 +23,7 @@ from measurement.image_io import read_grey
 from measurement.rigid import remove_rigid_motion
 from measurement.stereo_dic import measure_state, reference_shape
 from measurement.strain import surface_strain
-from workbench.experiments.bending.run import _FacePoses, _grid, _overlap_roi
+from workbench.experiments.bending.run import _FacePoses, _overlap_roi, grid_values
 from workbench.experiments.bending.scenes import load_bending_truth
 from workbench.experiments.rigid_motion.run import face_roi
 from workbench.rigs import get_rig
@@ -59,7 +59,7 @@ def main() -> None:
                               left_def, right_def, settings)
         stereo = time.perf_counter() - start
         removal = remove_rigid_motion(shape.X_mm, state.X_mm)
-        surface_strain(_grid(shape.X_mm, shape.grid), _grid(removal.X1_aligned_mm, shape.grid), window=args.window)
+        surface_strain(grid_values(shape.X_mm, shape.grid), grid_values(removal.X1_aligned_mm, shape.grid), window=args.window)
         total = time.perf_counter() - start
         label = "warm-up (not counted)" if k == 1 else ""
         print(f"state {k} ({truth.loads_N[k]:.0f} N): stereo {stereo:.2f} s + strain {total - stereo:.2f} s = "

@@ -38,26 +38,10 @@ def atomic_writer(path: str | Path, mode: str = "w", *, newline: str | None = No
     """
     if mode not in ("w", "wb"):
         raise ValueError(f"mode must be 'w' or 'wb', got {mode!r}")
-    path = Path(path)
-    try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    except OSError as err:
-        raise OSError(f"cannot write {path}: {err.strerror or err}") from None
     text = mode == "w"
-    try:
-        with os.fdopen(fd, mode, **({"newline": newline, "encoding": encoding} if text else {})) as handle:
+    with atomic_path(path) as tmp:      # fsync, rename, clean-up and the error naming ``path`` are its
+        with open(tmp, mode, **({"newline": newline, "encoding": encoding} if text else {})) as handle:
             yield handle
-            handle.flush()
-            os.fchmod(handle.fileno(), _file_mode(path))
-            os.fsync(handle.fileno())
-        os.replace(tmp, path)
-    except BaseException as err:
-        with contextlib.suppress(OSError):
-            os.unlink(tmp)
-        if isinstance(err, OSError):
-            raise OSError(f"cannot write {path}: {err.strerror or err}") from None
-        raise
 
 
 @contextlib.contextmanager

@@ -109,6 +109,22 @@ def _mirror(points, cells, U, axes) -> tuple[np.ndarray, np.ndarray, np.ndarray]
     return P, C, V
 
 
+def _quarter_in_tension(mesh, E_mpa: float, nu: float, thickness_mm: float, end_x_mm: float, stress_mpa):
+    """A quarter (x, y >= 0) of a flat specimen pulled along x by 1 MPa on its x = end face, symmetric about the
+    planes x = 0, y = 0 and its mid-thickness; scaled to each step's stress and mirrored whole.
+    Returns (points, hexahedron27 cells, displacements (K, P, 3), solve seconds)."""
+    tol = 1e-6
+    u, basis, seconds = _solve(mesh, E_mpa, nu,
+                               fixed=[(0, lambda x: np.abs(x[0]) < tol), (1, lambda x: np.abs(x[1]) < tol),
+                                      (2, lambda x: np.abs(x[2] - thickness_mm / 2) < tol)],
+                               loads=[(lambda x: np.abs(x[0] - end_x_mm) < tol,
+                                       lambda x, n: np.array([np.ones_like(x[0]), 0 * x[0], 0 * x[0]]))])
+    P, C = _hex27(mesh, basis)
+    U = np.stack([u.T * s for s in stress_mpa])
+    P, C, U = _mirror(P, C, U, (0, 1))
+    return P, C, U, seconds
+
+
 # ------------------------------------------------------------------------------------------------------------
 def plate_with_hole(length_mm: float = 120.0, width_mm: float = 60.0, thickness_mm: float = 3.0,
                     hole_radius_mm: float = 6.0, stress_mpa=(0.0, 40.0, 80.0, 120.0), E_mpa: float = 70_000.0,
@@ -131,18 +147,10 @@ def plate_with_hole(length_mm: float = 120.0, width_mm: float = 60.0, thickness_
         return np.array([xy[0], xy[1], z])
 
     mesh = _curved_mesh(np.linspace(0, 1, n_radial + 1), np.linspace(0, 2, n_around + 1), [0.0, T / 2, T], mapping)
-    tol = 1e-6
-    u, basis, seconds = _solve(mesh, E_mpa, nu,
-                               fixed=[(0, lambda x: np.abs(x[0]) < tol), (1, lambda x: np.abs(x[1]) < tol),
-                                      (2, lambda x: np.abs(x[2] - T / 2) < tol)],
-                               loads=[(lambda x: np.abs(x[0] - l) < tol,
-                                       lambda x, n: np.array([np.ones_like(x[0]), 0 * x[0], 0 * x[0]]))])
-    P, C = _hex27(mesh, basis)
-    U = np.stack([u.T * s for s in stress_mpa])
-    P, C, U = _mirror(P, C, U, (0, 1))
+    P, C, U, seconds = _quarter_in_tension(mesh, E_mpa, nu, T, l, stress_mpa)
     return FEResult("plate_with_hole", P, C, U, np.asarray(stress_mpa, float), "MPa remote stress",
-                    {"length_mm": length_mm, "width_mm": width_mm, "thickness_mm": T, "hole_radius_mm": a, "E_mpa": E_mpa, "nu": nu,
-                     "elements": int(len(C)), "solve_s": round(seconds, 2),
+                    {"length_mm": length_mm, "width_mm": width_mm, "thickness_mm": T, "hole_radius_mm": a,
+                     "E_mpa": E_mpa, "nu": nu, "elements": int(len(C)), "solve_s": round(seconds, 2),
                      "about": "remote tension along x on the x = +-length/2 faces; quarter model, mirrored"})
 
 
@@ -179,15 +187,7 @@ def notched_coupon(length_mm: float = 80.0, width_mm: float = 30.0, thickness_mm
     # cluster the s parameter round the notch (half the elements on its arc and the first stretch of edge)
     s_nodes = np.concatenate([np.linspace(0, frac, n_x // 2 + 1), np.linspace(frac, 1, n_x - n_x // 2 + 1)[1:]])
     mesh = _curved_mesh(s_nodes, np.linspace(0, 1, n_y + 1), [0.0, T / 2, T], mapping)
-    tol = 1e-6
-    u, basis, seconds = _solve(mesh, E_mpa, nu,
-                               fixed=[(0, lambda x: np.abs(x[0]) < tol), (1, lambda x: np.abs(x[1]) < tol),
-                                      (2, lambda x: np.abs(x[2] - T / 2) < tol)],
-                               loads=[(lambda x: np.abs(x[0] - L) < tol,
-                                       lambda x, n: np.array([np.ones_like(x[0]), 0 * x[0], 0 * x[0]]))])
-    P, C = _hex27(mesh, basis)
-    U = np.stack([u.T * s for s in stress_mpa])
-    P, C, U = _mirror(P, C, U, (0, 1))
+    P, C, U, seconds = _quarter_in_tension(mesh, E_mpa, nu, T, L, stress_mpa)
     return FEResult("notched_coupon", P, C, U, np.asarray(stress_mpa, float), "MPa remote stress",
                     {"length_mm": length_mm, "width_mm": width_mm, "thickness_mm": T, "notch_radius_mm": r,
                      "E_mpa": E_mpa, "nu": nu, "elements": int(len(C)), "solve_s": round(seconds, 2),

@@ -123,8 +123,12 @@ def test_speckle_finer_than_two_pixels_is_warned(tmp_path):
 
     path = _scenario(tmp_path, extra="speckle_mm = 0.1\ntexel_mm = 0.02\n")
     scenario = with_specimen_paths(load_config(Scenario, path), tmp_path)
-    with pytest.warns(UserWarning, match=r"plate.e in the left camera: speckles of 0.1 mm image at 0.\d+ px \(< 2 px"):
-        specimen_truth(scenario)
+    with pytest.warns(UserWarning, match=r"plate.e in the left camera: speckles of 0.1 mm image at 0.\d+ px \(< 2 px") \
+            as record:
+        truth = specimen_truth(scenario)
+    aliased = [str(w.message) for w in record if "aliased" in str(w.message)]
+    assert len(aliased) == 2 and "in the right camera" in aliased[1]
+    assert truth.info["paint"]["speckle_mm"] == 0.1              # warned, not refused: the scene is still made
 
 
 def test_specimen_through_export_stereo_and_score_clis(tmp_path, capsys):

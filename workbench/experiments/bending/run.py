@@ -41,14 +41,15 @@ DEFAULT_STRAIN_WINDOW = 15
 MAP_LOADS_N = (600.0, 1200.0, 1800.0)
 
 
-def _grid(values: np.ndarray, grid) -> np.ndarray:
+def grid_values(values: np.ndarray, grid) -> np.ndarray:
     """Per-point values (N, ...) of the active POIs on the grid's (rows, cols, ...) layout, NaN elsewhere."""
     out = np.full(grid.shape + values.shape[1:], np.nan)
     out[grid.active] = values
     return out
 
 
-def _rms(a) -> float:
+def rms(a) -> float:
+    """Root mean square of the finite values (NaN when there are none)."""
     a = np.asarray(a, float)
     a = a[np.isfinite(a)]
     return float(np.sqrt(np.mean(a ** 2))) if a.size else float("nan")
@@ -167,8 +168,8 @@ def reproduce_bending(out_dir: str | Path, *, scale: float = 1.0, rig_name: str 
     write_state_vtk(points_dir / "reference.vtk", shape)
     ref_err = np.linalg.norm(shape.X_mm[ok0] @ R_al.T + t_al - X_true[0][ok0], axis=1)
     X_ref_aligned = shape.X_mm @ R_al.T + t_al
-    x_spec_grid, y_spec_grid = _grid(X0_spec[:, 0], grid), _grid(X0_spec[:, 1], grid)
-    X_true_ref_grid = _grid(X_true[0], grid)
+    x_spec_grid, y_spec_grid = grid_values(X0_spec[:, 0], grid), grid_values(X0_spec[:, 1], grid)
+    X_true_ref_grid = grid_values(X_true[0], grid)
     peak_load = float(loads.max())
 
     vsg = virtual_strain_gauge_px(window if window is not None else 2, step, subset_size)
@@ -191,7 +192,7 @@ def reproduce_bending(out_dir: str | Path, *, scale: float = 1.0, rig_name: str 
         ok = state.valid & on_face
         # the same points define the rigid motion removed from the measurement and from the truth
         removal = remove_rigid_motion(X_ref_aligned, np.where(ok[:, None], X_def_aligned, np.nan))
-        strain = surface_strain(_grid(X_ref_aligned, grid), _grid(removal.X1_aligned_mm, grid), window=window)
+        strain = surface_strain(grid_values(X_ref_aligned, grid), grid_values(removal.X1_aligned_mm, grid), window=window)
         strain_s = time.perf_counter() - start
         # Truth: exact displacement of each material point, its exact strain, and the truth through the window.
         U_true = X_true[k] - X_true[0]
@@ -208,13 +209,13 @@ def reproduce_bending(out_dir: str | Path, *, scale: float = 1.0, rig_name: str 
         E_world = np.einsum("nia,nab,njb->nij", Q_world, E_exact, Q_world)
         basis = np.stack([e1, e2], axis=2)
         E_exact_meas = np.einsum("nia,nij,njb->nab", basis, E_world, basis)
-        filtered = surface_strain(X_true_ref_grid, _grid(X_true[k], grid), window=window)
+        filtered = surface_strain(X_true_ref_grid, grid_values(X_true[k], grid), window=window)
         E_meas = np.stack([np.stack([strain.E11, strain.E12], -1), np.stack([strain.E12, strain.E22], -1)], -2)
         E_filt = np.stack([np.stack([filtered.E11, filtered.E12], -1), np.stack([filtered.E12, filtered.E22], -1)], -2)
         mag_exact, _ = _strain_invariants(E_exact)
-        mag_exact_g = _grid(mag_exact, grid)
-        E_exact_g = _grid(E_exact_meas, grid)
-        valid_g = _grid(ok.astype(float), grid) > 0
+        mag_exact_g = grid_values(mag_exact, grid)
+        E_exact_g = grid_values(E_exact_meas, grid)
+        valid_g = grid_values(ok.astype(float), grid) > 0
         d_filt = np.where(valid_g, strain.magnitude - filtered.magnitude, np.nan)
         d_raw = np.where(valid_g, strain.magnitude - mag_exact_g, np.nan)
         comp_filt = np.where(valid_g[..., None, None], E_meas - E_filt, np.nan)
@@ -227,23 +228,23 @@ def reproduce_bending(out_dir: str | Path, *, scale: float = 1.0, rig_name: str 
         na_meas = _neutral_axis_mm(np.where(valid_g, strain.E11, np.nan), y_spec_grid, x_spec_grid)
         na_true = _neutral_axis_mm(np.where(np.isfinite(E_exact_g[..., 0, 0]), E_exact_g[..., 0, 0], np.nan),
                                    y_spec_grid, x_spec_grid)
-        _write_strain_csv(points_dir / f"strain_{k:02d}.csv", grid, strain, E_exact_g, _grid(mag_exact, grid),
-                          _grid(area_exact, grid), E_filt, filtered, valid_g)
+        _write_strain_csv(points_dir / f"strain_{k:02d}.csv", grid, strain, E_exact_g, grid_values(mag_exact, grid),
+                          grid_values(area_exact, grid), E_filt, filtered, valid_g)
         row = {"state": k, "load_N": load, "points": int(ok.sum()), "points_total": int(ok.size),
                "stereo_s": round(stereo_s, 2), "strain_s": round(strain_s, 3),
                "median_residual_px": float(np.nanmedian(state.residual_px[ok])),
                "p95_residual_px": state.quality.p95_residual_px,
-               "U_rmse_um": [_rms(1e3 * err[:, i]) for i in range(3)],
+               "U_rmse_um": [rms(1e3 * err[:, i]) for i in range(3)],
                "U_max_um": [float(np.nanmax(np.abs(1e3 * err[:, i]))) for i in range(3)],
-               "U_rmse_rigid_removed_um": [_rms(1e3 * err_def[:, i]) for i in range(3)],
+               "U_rmse_rigid_removed_um": [rms(1e3 * err_def[:, i]) for i in range(3)],
                "truth_max_displacement_um": float(1e3 * np.nanmax(np.linalg.norm(U_true[on_face], axis=1))),
                "strain_points": int(np.isfinite(d_filt).sum()),
-               "strain_magnitude_rmse_vs_filtered_ue": 1e6 * _rms(d_filt),
-               "strain_magnitude_rmse_vs_exact_ue": 1e6 * _rms(d_raw),
-               "strain_component_rmse_vs_filtered_ue": {n: 1e6 * _rms(comp_filt[..., a, b])
+               "strain_magnitude_rmse_vs_filtered_ue": 1e6 * rms(d_filt),
+               "strain_magnitude_rmse_vs_exact_ue": 1e6 * rms(d_raw),
+               "strain_component_rmse_vs_filtered_ue": {n: 1e6 * rms(comp_filt[..., a, b])
                                                         for n, (a, b) in (("E11", (0, 0)), ("E22", (1, 1)),
                                                                           ("E12", (0, 1)))},
-               "strain_component_rmse_vs_exact_ue": {n: 1e6 * _rms(comp_raw[..., a, b])
+               "strain_component_rmse_vs_exact_ue": {n: 1e6 * rms(comp_raw[..., a, b])
                                                      for n, (a, b) in (("E11", (0, 0)), ("E22", (1, 1)),
                                                                        ("E12", (0, 1)))},
                "peak_truth_strain_ue": 1e6 * peak, "peak_truth_strain_with_nose_contact_ue": 1e6 * peak_all,
@@ -258,9 +259,9 @@ def reproduce_bending(out_dir: str | Path, *, scale: float = 1.0, rig_name: str 
         rows.append(row)
         if any(abs(load - m) < 1e-6 for m in MAP_LOADS_N) or load == peak_load:
             maps[load] = {"x": x_spec_grid, "y": y_spec_grid,
-                          "U": (_grid(removal.residual_mm, grid), _grid(U_true_def, grid)),
+                          "U": (grid_values(removal.residual_mm, grid), grid_values(U_true_def, grid)),
                           "strain": (strain.magnitude, filtered.magnitude, mag_exact_g),
-                          "area": (strain.area_change, filtered.area_change, _grid(area_exact, grid))}
+                          "area": (strain.area_change, filtered.area_change, grid_values(area_exact, grid))}
     metrics = {"rig": rig_name, "calibration": rig_text, "images": str(images),
                "images_dataset": dataset_record("bending", content, images), "lens": lens, "scale": scale,
                **render_content(spp, mc_target_grey), "render_mc": mc_summary(truth.info["render"].get("mc", [])),

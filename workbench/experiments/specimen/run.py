@@ -26,18 +26,7 @@ from measurement.image_io import read_grey
 from measurement.rigid import fit_rigid, remove_rigid_motion
 from measurement.stereo_dic import StereoMatchError, measure_state, reference_shape
 from measurement.strain import surface_strain, virtual_strain_gauge_px
-
-
-def _grid(values: np.ndarray, grid) -> np.ndarray:
-    out = np.full(grid.shape + values.shape[1:], np.nan)
-    out[grid.active] = values
-    return out
-
-
-def _rms(a) -> float:
-    a = np.asarray(a, float)
-    a = a[np.isfinite(a)]
-    return float(np.sqrt(np.mean(a ** 2))) if a.size else float("nan")
+from workbench.experiments.bending.run import grid_values, rms
 
 
 def fit_cylinder(X_mm: np.ndarray, axis_point_mm, axis_direction) -> dict:
@@ -118,15 +107,15 @@ def measure_specimen(truth, images: Path, rig, *, subset_size: int = 33, step: i
         err = np.where(ok[:, None], U_meas - U_true, np.nan)
         row = {"state": k, "label": labels[k], "points": int(ok.sum()), "points_total": int(shape.valid.sum()),
                "points_hidden": int((shape.valid & ~seen).sum()), "stereo_s": round(stereo_s, 2),
-               "U_rmse_um": _rms(1e3 * np.linalg.norm(err, axis=1)),
-               "U_component_rmse_um": [_rms(1e3 * err[:, i]) for i in range(3)],
+               "U_rmse_um": rms(1e3 * np.linalg.norm(err, axis=1)),
+               "U_component_rmse_um": [rms(1e3 * err[:, i]) for i in range(3)],
                "U_mean_error_um": (1e3 * np.nanmean(err, axis=0)).tolist(),
                "truth_max_displacement_um": float(1e3 * np.nanmax(np.linalg.norm(U_true[ok], axis=1)))
                if ok.any() else float("nan")}
         if window is not None and ok.sum() > 50 and k not in static:
             removal = remove_rigid_motion(X_ref_aligned, np.where(ok[:, None], state.X_mm @ R_al.T + t_al, np.nan))
-            measured = surface_strain(_grid(X_ref_aligned, grid), _grid(removal.X1_aligned_mm, grid), window=window)
-            filtered = surface_strain(_grid(X_true[0], grid), _grid(np.where(ok[:, None], X_true[k], np.nan), grid),
+            measured = surface_strain(grid_values(X_ref_aligned, grid), grid_values(removal.X1_aligned_mm, grid), window=window)
+            filtered = surface_strain(grid_values(X_true[0], grid), grid_values(np.where(ok[:, None], X_true[k], np.nan), grid),
                                       window=window)
             E_exact, _ = truth.strain_truth(pix, k)
             mag_exact = np.sqrt(np.sum(np.linalg.eigvalsh(np.where(np.isfinite(E_exact), E_exact, 0.0)) ** 2,
@@ -136,7 +125,7 @@ def measure_specimen(truth, images: Path, rig, *, subset_size: int = 33, step: i
             d = np.where(valid_g, measured.magnitude - filtered.magnitude, np.nan)
             peak_i = int(np.nanargmax(mag_exact)) if np.isfinite(mag_exact).any() else None
             row.update(strain_points=int(valid_g.sum()),
-                       strain_rmse_vs_filtered_ue=1e6 * _rms(d),
+                       strain_rmse_vs_filtered_ue=1e6 * rms(d),
                        strain_peak_exact_ue=1e6 * float(np.nanmax(mag_exact)) if peak_i is not None else float("nan"))
             if peak_i is not None:
                 r, c = np.argwhere(grid.active)[peak_i]
@@ -149,7 +138,7 @@ def measure_specimen(truth, images: Path, rig, *, subset_size: int = 33, step: i
                 row["strain_rmse_percent_of_peak"] = 100 * row["strain_rmse_vs_filtered_ue"] / row[
                     "strain_peak_exact_ue"] if row["strain_peak_exact_ue"] > 0 else float("nan")
             maps[k] = {"measured": measured.magnitude, "filtered": filtered.magnitude,
-                       "exact": _grid(mag_exact, grid)}
+                       "exact": grid_values(mag_exact, grid)}
         rows.append(row)
     noise = None
     if static:
@@ -159,7 +148,7 @@ def measure_specimen(truth, images: Path, rig, *, subset_size: int = 33, step: i
         if noise and "U_rmse_um" in r and r["state"] not in static:
             r["U_rmse_over_noise_floor"] = r["U_rmse_um"] / noise
     out = {"rows": rows, "noise_floor_um": noise, "static_states": static,
-           "reference_rms_um": _rms(reference_um), "reference_s": round(reference_s, 2),
+           "reference_rms_um": rms(reference_um), "reference_s": round(reference_s, 2),
            "settings": {"subset_px": subset_size, "step_px": step, "order": 2, "strain_window": window,
                         "vsg_px": virtual_strain_gauge_px(window, step, subset_size) if window else None},
            "points": int(ok0.sum()), "maps": maps, "grid_shape": list(grid.shape)}
