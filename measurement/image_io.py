@@ -21,7 +21,7 @@ import io
 import logging
 import math
 import warnings
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import cv2
@@ -56,6 +56,8 @@ class ImageInfo:
         Smallest and largest finite value (NaN, NaN if there is none).
     non_finite : int
         Number of NaN or infinite pixels (floating point only).
+    colour : bool
+        The file held colour (RGB or RGBA, decoded by OpenCV), converted to grey with OpenCV's weights.
     """
 
     path: Path
@@ -65,6 +67,8 @@ class ImageInfo:
     low_zero_bits: int
     value_range: tuple[float, float]
     non_finite: int = 0
+    #: True when the file held colour (3 or 4 channels) that was converted to grey.
+    colour: bool = False
 
     def describe(self) -> str:
         """One line for reports, e.g. ``12-bit data in a 16-bit container (values 0..4095)``."""
@@ -108,8 +112,10 @@ def read_grey_info(path: str | Path) -> ImageInfo:
         image = _decode_tiff(data, path)
     else:
         image = _decode_opencv(data, path)
+    colour = np.ndim(image) == 3 and np.shape(image)[2] >= 3
     image = _to_grey(image, path)
-    return _info(path, image)
+    info = _info(path, image)
+    return replace(info, colour=True) if colour else info
 
 
 # ---------------------------------------------------------------------------------------------------------

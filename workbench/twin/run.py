@@ -1,0 +1,446 @@
+"""A digital twin of the user's rig, end to end: :func:`run_twin`.
+
+1. Inputs (:mod:`.inputs`): the rig from the calibration file, the images checked against it.
+2. The real pair: with a right image, the instrument's reference shape of the user's own pair (the plane the
+   twin paints on, the right camera's region); with a static pair, the instrument's noise on it (the figure the
+   prediction is checked against) and its mean motion (refused above the image noise's motion equivalent, see
+   :func:`static_motion_limit_px`).
+3. The speckle (:mod:`measurement.speckle_quality`): grey statistics, speckle size, SSSIG and MIG per subset,
+   each camera's noise model (measured from the static pair, motion and illumination drift undone; else
+   estimated from one image), the subset advice (too fine / too coarse are refused, with the subset it needs).
+4. The twin (:mod:`.scene`): the pattern on the plane, rendered through the rig; its static pairs measured by the
+   instrument (:mod:`.predict`): the noise floor of U, V, W (µm) and strain (µε) per point and pooled, the
+   Pan-type bound, the interpolation bias on the pattern, l10 on the pattern.
+5. The what-if table (:mod:`.whatif`); with a static pair, the top recommendation is also applied to the real
+   pair and measured.
+"""
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy import ndimage
+
+from measurement.dic import DICSettings
+from measurement.dic.roi import texture_mask
+from measurement.speckle_quality import (grey_statistics, noise_from_image, noise_from_static_pair, speckle_size_px,
+                                         subset_advice, subset_sssig)
+from measurement.stereo_dic import reference_shape
+
+from .inputs import TwinInputs, load_inputs
+from .measure import static_noise_2d, static_noise_stereo
+from .predict import (draws, interpolation_bias_px, pan_bound_2d, pan_bound_stereo, spatial_resolution,
+                      twin_static_noise)
+from .scene import TwinScene, build_stereo_scene, default_plane, plane_through_points, twin_rig
+from .whatif import (displacement_figure, rank, strain_figure, strain_only, theory_l10, variants, vsg_px)
+
+
+class NotStaticError(ValueError):
+    """The "static" pair moved by more than its noise can hide."""
+
+
+@dataclass(frozen=True)
+class TwinSettings:
+    """The user's instrument settings the twin predicts for.
+
+    Attributes
+    ----------
+    subset_px : int
+        Odd subset width, px.
+    step_px : int or None
+        Grid step, px (None: a quarter of the subset, at least 2).
+    order : {1, 2}
+    interpolation : {"biquintic", "bicubic"}
+    strain_window : int or None
+        Strain window in grid points (odd >= 3); None: Cosserat triangles.
+    """
+
+    subset_px: int = 33
+    step_px: int | None = None
+    order: int = 2
+    interpolation: str = "biquintic"
+    strain_window: int | None = 5
+
+    def dic(self) -> DICSettings:
+        step = self.step_px if self.step_px is not None else max(2, self.subset_px // 4)
+        return DICSettings(subset_size=int(self.subset_px), step=int(step), order=int(self.order),
+                           interpolation=self.interpolation)
+
+
+@dataclass
+class TwinResult:
+    """Everything the twin found and predicted (see :func:`run_twin`); ``summary()`` is JSON-ready."""
+
+    inputs: TwinInputs = field(repr=False)
+    settings: TwinSettings
+    speckle: dict
+    noise_models: dict = field(repr=False)
+    prediction: dict = field(default_factory=dict)
+    measured: dict | None = None
+    comparison: dict | None = None
+    whatif: list = field(default_factory=list)
+    whatif_real: dict | None = None
+    maps: dict = field(default_factory=dict, repr=False)
+    scene: TwinScene | None = field(default=None, repr=False)
+    timings_s: dict = field(default_factory=dict)
+    notes: list = field(default_factory=list)
+
+    @property
+    def unit(self) -> str:
+        return "um" if self.inputs.stereo else "px"
+
+    def summary(self) -> dict:
+        return _json({"kind": "stereo" if self.inputs.stereo else "2d", "unit": self.unit,
+                      "settings": self.settings.__dict__, "dic_step_px": self.settings.dic().step,
+                      "inputs": {k: str(v.path) for k, v in self.inputs.infos.items()},
+                      "calibration": str(self.inputs.calibration) if self.inputs.calibration else None,
+                      "bit_depth": self.inputs.bit_depth, "roi": self.inputs.roi, "speckle": self.speckle,
+                      "noise_models": {k: _noise_dict(m) for k, m in self.noise_models.items()},
+                      "prediction": self.prediction, "measured": self.measured, "comparison": self.comparison,
+                      "whatif": self.whatif, "whatif_real": self.whatif_real, "timings_s": self.timings_s,
+                      "notes": self.inputs.notes + self.notes})
+
+
+def _noise_dict(model) -> dict:
+    return {"sigma_grey": model.sigma_grey, "read_noise_grey": model.read_noise_grey,
+            "electrons_per_grey": model.electrons_per_grey, "source": model.source}
+
+
+def _json(value):
+    if isinstance(value, dict):
+        return {str(k): _json(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_json(v) for v in value]
+    if isinstance(value, (np.floating, float)):
+        return float(value) if math.isfinite(value) else None
+    if isinstance(value, (np.integer,)):
+        return int(value)
+    if isinstance(value, np.ndarray):
+        return _json(value.tolist())
+    return value
+
+
+def static_motion_limit_px(image: np.ndarray, region: np.ndarray, sigma_grey: float) -> float:
+    """The motion whose grey-level change equals the image noise: ``sigma / RMS |grad I|`` over the region, px.
+
+    Below it a "static" pair's motion hides in the noise (and is undone before the noise is read); above it the
+    pair shows motion, not noise, and is refused."""
+    gy, gx = np.gradient(np.asarray(image, dtype=np.float64))
+    g2 = (gx * gx + gy * gy)[region]
+    return float(sigma_grey / math.sqrt(np.mean(g2))) if g2.size and np.mean(g2) > 0 else math.inf
+
+
+def right_region_of(shape, x_px, y_px, subset: int, step: int) -> np.ndarray:
+    """The right image's pixels the matched subsets cover: each matched point's neighbourhood (the step, at least
+    half a subset), so the right camera's statistics are those of the specimen it sees, not of the background."""
+    region = np.zeros(shape, dtype=bool)
+    x = np.rint(np.asarray(x_px)).astype(np.int64)
+    y = np.rint(np.asarray(y_px)).astype(np.int64)
+    ok = (x >= 0) & (y >= 0) & (x < shape[1]) & (y < shape[0])
+    if not ok.any():
+        region[:] = True
+        return region
+    region[y[ok], x[ok]] = True
+    reach = max(int(step), int(subset) // 2)
+    return ndimage.binary_dilation(region, np.ones((2 * reach + 1, 2 * reach + 1), dtype=bool))
+
+
+def _speckle_figures(image, region, bit_depth, noise, settings: DICSettings, step_points=None) -> dict:
+    stats = grey_statistics(image, region, bit_depth)
+    size = speckle_size_px(image, region)
+    half = settings.subset_size // 2
+    rows, cols = np.nonzero(region)
+    if step_points is None:
+        ys = np.arange(rows.min() + half, rows.max() - half + 1, settings.step)
+        xs = np.arange(cols.min() + half, cols.max() - half + 1, settings.step)
+        X, Y = np.meshgrid(xs, ys)
+        keep = region[Y, X]
+        x, y = X[keep], Y[keep]
+    else:
+        x, y = step_points
+    x = np.asarray(x, dtype=np.int64)
+    y = np.asarray(y, dtype=np.int64)
+    inside = (x >= half) & (y >= half) & (x < image.shape[1] - half) & (y < image.shape[0] - half)
+    x, y = x[inside], y[inside]
+    sx, sy, mig = subset_sssig(image, x, y, settings.subset_size, noise.sigma_grey)
+    advice = subset_advice(image, x[:: max(1, x.size // 400)], y[:: max(1, y.size // 400)], noise.sigma_grey, size)
+    return {"mean_grey": stats.mean_grey, "std_grey": stats.std_grey, "contrast": stats.contrast,
+            "p1_grey": stats.p1_grey, "p99_grey": stats.p99_grey, "saturated_fraction": stats.saturated_fraction,
+            "zero_fraction": stats.zero_fraction, "histogram": stats.histogram.tolist(),
+            "bin_edges": stats.bin_edges.tolist(), "speckle_size_px": size, "autocorrelation_radius_px": size / 2,
+            "mig_grey_per_px": float(np.mean(mig)) if mig.size else math.nan,
+            "sssig_median_grey2": float(np.median(np.minimum(sx, sy))) if sx.size else math.nan,
+            "noise_sigma_grey": noise.sigma_grey, "noise_source": noise.source,
+            "advice": {"subset_px": advice.subset_px, "needed_px": advice.needed_px, "verdict": advice.verdict,
+                       "message": advice.message},
+            "_points": (x, y, sx, sy, mig)}
+
+
+def run_twin(left, right=None, static_left=None, static_right=None, *, calibration=None, roi=None, mask=None,
+             auto_roi: bool = False, settings: TwinSettings | None = None, bit_depth: int | None = None,
+             repeats: int = 2, seed: int = 0, whatif: bool = True, objective: str = "displacement",
+             bias: bool = True, resolution: bool = True, apply_top_to_real: bool = True,
+             allow_coarse: bool = False, progress=None) -> TwinResult:
+    """The digital twin of a rig from its calibration and images (module notes).
+
+    Parameters
+    ----------
+    left, right, static_left, static_right : path
+        The left (and right) reference images; a second exposure of each of the unmoved scene (optional).
+    calibration : path, optional
+        The rig's calibration (needed for a stereo twin; a one-camera twin without it works in px).
+    roi : (x0, y0, x1, y1) or str, optional
+    mask : path or ndarray of bool, optional
+    auto_roi : bool
+        Measure only subsets with enough texture (:func:`measurement.dic.roi.texture_mask`).
+    settings : TwinSettings
+        The user's subset, step, order, interpolation and strain window.
+    bit_depth : int, optional
+        The data's bit depth, if stated (checked against the files).
+    repeats : int
+        Twin static pairs for the prediction (>= 1; 2 gives per-point maps).
+    seed : int
+        Seed of every noise draw.
+    whatif : bool
+        Build the what-if table.
+    objective : {"displacement", "strain"}
+        What the table ranks by.
+    bias, resolution : bool
+        Predict the interpolation bias / l10 on the pattern.
+    apply_top_to_real : bool
+        With a static pair, measure the real pair again with the top recommendation.
+    allow_coarse : bool
+        Go on when the speckle is too coarse or too fine for any subset (the advice is still reported).
+    progress : callable, optional
+        ``progress(message)`` for long steps.
+
+    Raises
+    ------
+    ValueError
+        Bad inputs (:mod:`.inputs`), a speckle too fine or too coarse (unless ``allow_coarse``);
+        :class:`NotStaticError` for a static pair that moved.
+    """
+    say = progress or (lambda message: None)
+    settings = settings or TwinSettings()
+    if repeats < 1:
+        raise ValueError(f"repeats must be >= 1, got {repeats}")
+    times = {}
+    start = time.perf_counter()
+    inputs = load_inputs(left, right, static_left, static_right, calibration=calibration, roi=roi, mask=mask,
+                         bit_depth=bit_depth)
+    dic = settings.dic()
+    images = inputs.images
+    region = inputs.region
+    notes: list[str] = []
+    times["inputs"] = time.perf_counter() - start
+
+    # 2. the real pair
+    t = time.perf_counter()
+    rig = inputs.rig
+    measured = None
+    real_shape = None
+    roi_rect, mask_arr = inputs.roi, inputs.mask
+    noise0 = noise_from_image(images["left"])
+    if auto_roi:
+        auto = texture_mask(images["left"], dic.subset_size, noise_sigma_grey=noise0.sigma_grey)
+        mask_arr = auto if mask_arr is None else (mask_arr & auto)
+        region = region & auto
+        if not region.any():
+            raise ValueError("--auto-roi: no subset of the left reference has enough texture")
+    if inputs.stereo:
+        say("instrument: reference shape of your pair")
+        real_shape = reference_shape(rig.left, rig.right, rig.R_right_from_left, rig.T_right_from_left_mm,
+                                     images["left"], images["right"], dic, roi=roi_rect, mask=mask_arr)
+    if inputs.has_static:
+        say("instrument: your static pair")
+        if inputs.stereo:
+            measured_run = static_noise_stereo(rig, images["left"], images["right"], images["static_left"],
+                                               images["static_right"], dic, roi=roi_rect, mask=mask_arr,
+                                               strain_window=settings.strain_window, shape=real_shape)
+        else:
+            measured_run = static_noise_2d(images["left"], images["static_left"], dic, roi=roi_rect, mask=mask_arr,
+                                           strain_window=settings.strain_window)
+        measured = measured_run
+    times["real_pair"] = time.perf_counter() - t
+
+    # 3. speckle and noise
+    t = time.perf_counter()
+    right_region = None
+    if inputs.stereo:
+        rm = real_shape.right_match
+        ok = real_shape.valid
+        xr, yr = (rm.x + rm.u)[ok], (rm.y + rm.v)[ok]
+        right_region = right_region_of(images["right"].shape, xr, yr, dic.subset_size, dic.step)
+    noise_models = {}
+    for side, reg in (("left", region), ("right", right_region)):
+        if side not in images:
+            continue
+        if inputs.has_static:
+            motion = measured.mean_motion_uv_px if side == "left" else (0.0, 0.0)
+            noise_models[side] = noise_from_static_pair(images[side], images[f"static_{side}"], reg,
+                                                        motion_xy_px=motion)
+        else:
+            noise_models[side] = noise_from_image(images[side])
+            notes.append(f"{side} camera noise estimated from one image ({noise_models[side].sigma_grey:.3g} grey): "
+                         "give a static pair (--static-left/--static-right) to measure it")
+    speckle = {}
+    for side, reg in (("left", region), ("right", right_region)):
+        if side in images:
+            speckle[side] = _speckle_figures(images[side], reg, inputs.bit_depth, noise_models[side], dic)
+    advice = speckle["left"]["advice"]
+    if advice["verdict"] != "ok" and not allow_coarse:
+        raise ValueError(f"speckle {advice['verdict']}: {advice['message']} (--allow-coarse to go on anyway)")
+    if inputs.has_static:
+        limit = static_motion_limit_px(images["left"], region, noise_models["left"].sigma_grey)
+        if measured.mean_motion_px > limit:
+            paths = inputs.infos
+            raise NotStaticError(
+                f"the static pair {paths['left'].path.name} -> {paths['static_left'].path.name} is not static: its "
+                f"mean motion is ({measured.mean_motion_uv_px[0]:+.4f}, {measured.mean_motion_uv_px[1]:+.4f}) px, "
+                f"above the {limit:.4f} px that the image noise ({noise_models['left'].sigma_grey:.3g} grey) can "
+                "hide; record two exposures without touching the rig")
+        speckle["left"]["static_motion_limit_px"] = limit
+    times["speckle"] = time.perf_counter() - t
+
+    # 4. the twin
+    t = time.perf_counter()
+    texture = images["left"] if not inputs.has_static else 0.5 * (images["left"] + images["static_left"])
+    scene = None
+    mm_per_px = None
+    if inputs.stereo:
+        trig, skews = twin_rig(rig)
+        if any(skews.values()):
+            notes.append("the renderer has no skew: the twin's cameras drop the calibration's skew "
+                         f"({skews['left']:+.3g}, {skews['right']:+.3g} px) and measure with the same cameras")
+        try:
+            point, normal = plane_through_points(real_shape.X_mm[real_shape.valid])
+            plane_note = "the plane fitted through your pair's measured reference points"
+        except ValueError:
+            point, normal = default_plane(trig)
+            plane_note = "the plane where the optical axes meet"
+        say("twin: rendering both cameras")
+        scene = build_stereo_scene(trig, texture, point, normal, right_target=images["right"],
+                                   right_region=right_region)
+        notes.append(f"twin scene: your left image painted on {plane_note} (distance {np.linalg.norm(point):.1f} mm),"
+                     " point-sampled through both cameras; the right view scaled to your right image's mean and "
+                     "contrast; both cameras' optics taken equal")
+        Z = real_shape.X_mm[real_shape.valid][:, 2]
+        mm_per_px = float(np.median(Z) / rig.left.fx)
+    else:
+        scene = TwinScene(None, {"left": texture}, {"left": np.ones(texture.shape, bool)}, {}, None)
+    times["twin_render"] = time.perf_counter() - t
+
+    t = time.perf_counter()
+    say(f"twin: {repeats} static pair(s) through the instrument")
+    pooled = twin_static_noise(scene, noise_models, inputs.bit_depth, dic, roi=roi_rect, mask=mask_arr,
+                               strain_window=settings.strain_window, repeats=repeats, seed=seed, progress=say)
+    times["twin_static"] = time.perf_counter() - t
+    base_run = pooled.runs[0]
+    twin_images = draws(scene, noise_models, inputs.bit_depth, seed, 0)
+    if inputs.stereo:
+        bound, bound_map = pan_bound_stereo(scene.rig, twin_images["left"], twin_images["right"], base_run.x_px,
+                                            base_run.y_px, base_run.right_xy_px, base_run.X_ref_mm,
+                                            dic.subset_size, noise_models)
+    else:
+        bound, bound_map = pan_bound_2d(twin_images["left"], base_run.x_px, base_run.y_px, dic.subset_size,
+                                        noise_models["left"]), None
+    prediction = {"noise": pooled.noise, "noise_detrended": pooled.detrended, "strain_ue": pooled.strain_ue,
+                  "pan_bound": bound, "repeats": repeats, "points": base_run.points,
+                  "mm_per_px": mm_per_px, "vsg_px": vsg_px(dic, settings.strain_window),
+                  "l10_theory_px": theory_l10(dic)}
+    t = time.perf_counter()
+    if bias:
+        say("twin: interpolation bias on your pattern")
+        b = interpolation_bias_px(texture, region, dic)
+        prediction["bias"] = b
+        if mm_per_px:
+            prediction["bias"]["max_abs_um"] = b["max_abs_px"] * mm_per_px * 1e3
+    times["bias"] = time.perf_counter() - t
+    t = time.perf_counter()
+    if resolution:
+        say("twin: spatial resolution (Star field on your pattern)")
+        r = spatial_resolution(texture, region, dic, noise_models["left"], inputs.bit_depth, seed=seed)
+        prediction["resolution"] = r
+        if mm_per_px and np.isfinite(r.get("l10_px", math.nan)):
+            r["l10_mm"] = r["l10_px"] * mm_per_px
+    times["resolution"] = time.perf_counter() - t
+
+    comparison = None
+    if measured is not None:
+        comparison = {}
+        for key, predicted in pooled.noise.items():
+            real = measured.noise.get(key, math.nan)
+            comparison[key] = {"predicted": predicted, "measured": real,
+                               "ratio": predicted / real if real else math.nan,
+                               "measured_detrended": measured.detrended.get(key, math.nan)}
+        for key, predicted in pooled.strain_ue.items():
+            real = measured.strain_ue.get(key, math.nan)
+            comparison[f"{key}_ue"] = {"predicted": predicted, "measured": real,
+                                       "ratio": predicted / real if real else math.nan}
+
+    # 5. what-if
+    rows, whatif_real = [], None
+    t = time.perf_counter()
+    if whatif:
+        max_subset = min(images["left"].shape) // 2 * 2 - 1
+        for label, s, window in variants(dic, settings.strain_window, base_run.points, max_subset):
+            if label.startswith("baseline"):
+                run_noise, run_strain, b = base_run.noise, base_run.strain_ue, bound
+            elif s is dic:           # a strain-only change
+                run_noise, run_strain, b = base_run.noise, strain_only(base_run, window), bound
+            else:
+                say(f"what-if: {label}")
+                p = twin_static_noise(scene, noise_models, inputs.bit_depth, s, roi=roi_rect, mask=mask_arr,
+                                      strain_window=window, repeats=1, seed=seed)
+                r0 = p.runs[0]
+                run_noise, run_strain = r0.noise, r0.strain_ue
+                if inputs.stereo:
+                    b, _ = pan_bound_stereo(scene.rig, twin_images["left"], twin_images["right"], r0.x_px, r0.y_px,
+                                            r0.right_xy_px, r0.X_ref_mm, s.subset_size, noise_models)
+                else:
+                    b = pan_bound_2d(twin_images["left"], r0.x_px, r0.y_px, s.subset_size, noise_models["left"])
+            rows.append({"label": label, "subset_px": s.subset_size, "step_px": s.step, "order": s.order,
+                         "strain_window": window, "noise": run_noise, "strain_ue": run_strain, "pan_bound": b,
+                         "displacement_noise": displacement_figure(run_noise),
+                         "strain_noise_ue": strain_figure(run_strain),
+                         "pan_bound_figure": displacement_figure(b), "l10_theory_px": theory_l10(s),
+                         "vsg_px": vsg_px(s, window)})
+        rows = rank(rows, objective)
+        for lens_row in ("f-number", "focus distance"):
+            rows.append({"label": f"{lens_row}: not applicable", "rank": None,
+                         "reason": "the calibration describes a pinhole camera (no aperture or focus); a thin-lens "
+                                   "rig's lens is needed for this row"})
+        top = next((r for r in rows if r.get("rank") == 1), None)
+        if top is not None and measured is not None and apply_top_to_real:
+            say(f"instrument: your static pair with the top recommendation ({top['label']})")
+            s = DICSettings(subset_size=top["subset_px"], step=top["step_px"], order=top["order"],
+                            interpolation=dic.interpolation)
+            if inputs.stereo:
+                after = static_noise_stereo(rig, images["left"], images["right"], images["static_left"],
+                                            images["static_right"], s, roi=roi_rect, mask=mask_arr,
+                                            strain_window=top["strain_window"])
+            else:
+                after = static_noise_2d(images["left"], images["static_left"], s, roi=roi_rect, mask=mask_arr,
+                                        strain_window=top["strain_window"])
+            key = "displacement_noise" if objective == "displacement" else "strain_noise_ue"
+            before_fig = displacement_figure(measured.noise) if key == "displacement_noise" else \
+                strain_figure(measured.strain_ue)
+            after_fig = displacement_figure(after.noise) if key == "displacement_noise" else \
+                strain_figure(after.strain_ue)
+            whatif_real = {"label": top["label"], "objective": objective, "measured_before": before_fig,
+                           "measured_after": after_fig, "predicted_before": rows[0][key], "predicted_after": top[key],
+                           "measured_change": after_fig / before_fig - 1.0 if before_fig else math.nan,
+                           "predicted_change": top["change"], "noise_before": measured.noise,
+                           "noise_after": after.noise, "strain_before_ue": measured.strain_ue,
+                           "strain_after_ue": after.strain_ue}
+    times["whatif"] = time.perf_counter() - t
+    times["total"] = time.perf_counter() - start
+
+    for side in speckle:
+        speckle[side].pop("_points", None)
+    maps = {"x_px": base_run.x_px, "y_px": base_run.y_px, "per_point": pooled.per_point, "pan_bound": bound_map,
+            "measured": None if measured is None else measured.values}
+    return TwinResult(inputs, settings, speckle, noise_models, prediction, None if measured is None else
+                      measured.summary(), comparison, rows, whatif_real, maps, scene, times, notes)
