@@ -20,6 +20,8 @@
     workbench budget STUDY.toml --metric NAME [--at DIM=VALUE] [--scheduler ...] [--workers N] --out DIR
     workbench parameters            (every scenario.* and instrument.* parameter a study may set)
     workbench reproduce fig6-causes [--study studies/fig6_causes.toml] [--workers N] --out DIR
+    workbench twin [--calib CAL] --left L0 [--right R0] [--static-left L1 --static-right R1]
+                   [--roi ...|--mask M|--auto-roi] [--subset 33] [--step 8] [--order 2] [--strain-window 5] --out DIR
 
 Every option is checked when it is parsed (numbers finite and in range, sizes odd, ...) and every input file
 before the first long computation; errors are one line naming the option or file, exit code 2. Files are
@@ -35,11 +37,11 @@ import sys
 import warnings
 
 from workbench.commands import (budget, calibrate, calibration, catalog, dic, export, gate, parameters, render,
-                                reproduce, score, stereo, sweep)
+                                reproduce, score, stereo, sweep, twin)
 
 #: The verbs in the order ``workbench --help`` lists them.
 VERBS = (render, reproduce, calibrate, stereo, dic, sweep, budget, export, score, gate, parameters, calibration,
-         catalog)
+         catalog, twin)
 #: (command, subcommand or None) -> handler(args) -> exit code, from every verb's module.
 HANDLERS = {key: handler for verb in VERBS for key, handler in verb.HANDLERS.items()}
 

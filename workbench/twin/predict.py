@@ -17,6 +17,7 @@
 from __future__ import annotations
 
 import math
+import warnings
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -69,7 +70,8 @@ def pool(runs: list[StaticNoise]) -> PooledNoise:
 
     stack = np.stack([r.values for r in runs])
     count = np.sum(np.isfinite(stack), axis=0)
-    with np.errstate(invalid="ignore", divide="ignore"):
+    with np.errstate(invalid="ignore", divide="ignore"), warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)       # points no repeat measured: NaN, as they should be
         mean = np.nanmean(stack, axis=0) if len(runs) > 1 else stack[0]
         per_point = np.sqrt(np.nansum((stack - mean) ** 2, axis=0) / np.maximum(count - 1, 1))
     per_point = np.where(count >= 2, per_point, np.nan)
@@ -175,7 +177,8 @@ def pan_bound_stereo(rig, left: np.ndarray, right: np.ndarray, x_px, y_px, right
     J = np.concatenate([projection_jacobian(rig.left, X), projection_jacobian(rig.right, X @ R.T + T) @ R], axis=1)
     W = 1.0 / np.stack(var, axis=1)                          # (M, 4): left u, left v, right u, right v
     normal = np.einsum("mai,ma,maj->mij", J, W, J)
-    good = np.all(np.isfinite(normal), axis=(1, 2))
+    good = np.all(np.isfinite(normal), axis=(1, 2)) & np.all(W > 0, axis=1)
+    good[good] &= np.linalg.cond(normal[good]) < 1e12
     cov = np.full(normal.shape, np.nan)
     cov[good] = np.linalg.inv(normal[good])
     sd = np.sqrt(np.einsum("mii->mi", cov)) * 1e3

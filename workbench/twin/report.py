@@ -1,5 +1,318 @@
-"""The twin's report (placeholder until written)."""
+"""The twin's report: ``report.html`` (self-contained), ``report.md``, ``twin.json``, ``twin_points.csv``, figures.
+
+What a user looks at first: the predicted noise floor (and, with a static pair, beside what the instrument
+measured on it), the what-if table with the top recommendation, maps of the predicted noise over the ROI, the
+speckle-quality figures (image, histogram, SSSIG/Pan map, noise model), and the Star curve on their pattern.
+"""
+from __future__ import annotations
+
+import csv
+import io
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+
+from labio.atomic import atomic_writer
+
+from ..reporting.html_report import write_html_report
 
 
-def write_twin_report(result, out_dir):
-    raise NotImplementedError
+def _fmt(value, digits: int = 3) -> str:
+    if value is None or (isinstance(value, float) and not math.isfinite(value)):
+        return "-"
+    if isinstance(value, (int, np.integer)):
+        return str(int(value))
+    return f"{value:.{digits}g}"
+
+
+def _png(fig, path: Path) -> str:
+    import matplotlib.pyplot as plt
+
+    buffer = io.BytesIO()
+    fig.savefig(buffer, format="png", dpi=110, bbox_inches="tight")
+    plt.close(fig)
+    with atomic_writer(path, "wb") as f:
+        f.write(buffer.getvalue())
+    return path.name
+
+
+def _grid(x, y, v):
+    xs, ix = np.unique(x, return_inverse=True)
+    ys, iy = np.unique(y, return_inverse=True)
+    out = np.full((ys.size, xs.size), np.nan)
+    out[iy, ix] = v
+    return out, (xs.min(), xs.max(), ys.max(), ys.min())
+
+
+def _local_rms(grid: np.ndarray, size: int = 5) -> np.ndarray:
+    """RMS over the finite values of each ``size`` x ``size`` neighbourhood (NaN where the point is NaN)."""
+    from scipy import ndimage
+
+    ok = np.isfinite(grid)
+    total = ndimage.uniform_filter(np.where(ok, grid ** 2, 0.0), size, mode="constant")
+    count = ndimage.uniform_filter(ok.astype(float), size, mode="constant")
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.where(ok & (count > 0), np.sqrt(total / count), np.nan)
+
+
+def _maps_figure(result, out: Path) -> str | None:
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    maps = result.maps
+    per_point = maps.get("per_point")
+    if per_point is None or not np.isfinite(per_point).any():
+        return None
+    names = ["U", "V", "W"] if result.inputs.stereo else ["u", "v"]
+    unit = "µm" if result.inputs.stereo else "px"
+    rows = [("twin: predicted 1σ (local RMS, 5 x 5 points)", per_point)]
+    if maps.get("pan_bound") is not None:
+        rows.append(("Pan-type bound per point", maps["pan_bound"]))
+    if maps.get("measured") is not None:
+        rows.append(("your static pair: measured value (mean removed)", maps["measured"]))
+    fig, axes = plt.subplots(len(rows), len(names), figsize=(4.2 * len(names), 2.9 * len(rows)), squeeze=False)
+    for r, (title, values) in enumerate(rows):
+        for c, name in enumerate(names):
+            grid, extent = _grid(maps["x_px"], maps["y_px"], values[:, c])
+            if r == 0:
+                grid = _local_rms(grid)       # a per-point spread from a few repeats is itself noisy
+            ax = axes[r, c]
+            finite = grid[np.isfinite(grid)]
+            if "measured" in title:
+                lim = np.percentile(np.abs(finite), 99) if finite.size else 1
+                im = ax.imshow(grid, extent=extent, cmap="RdBu_r", vmin=-lim, vmax=lim, aspect="equal")
+            else:
+                hi = np.percentile(finite, 99) if finite.size else 1
+                im = ax.imshow(grid, extent=extent, cmap="viridis", vmin=0, vmax=hi, aspect="equal")
+            ax.set_title(f"{name}: {title}", fontsize=8)
+            ax.set_xlabel("x (px, left image)", fontsize=7)
+            ax.tick_params(labelsize=6)
+            fig.colorbar(im, ax=ax, label=unit, shrink=0.8)
+    return _png(fig, out / "noise_maps.png")
+
+
+def _speckle_figure(result, out: Path) -> str:
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    sides = list(result.speckle)
+    fig, axes = plt.subplots(len(sides), 3, figsize=(13, 3.3 * len(sides)), squeeze=False)
+    region = result.inputs.region
+    for r, side in enumerate(sides):
+        sp = result.speckle[side]
+        image = result.inputs.images[side]
+        ax = axes[r, 0]
+        if side == "left":
+            ys, xs = np.nonzero(region)
+            y0, y1, x0, x1 = ys.min(), ys.max() + 1, xs.min(), xs.max() + 1
+        else:
+            y0, y1, x0, x1 = 0, image.shape[0], 0, image.shape[1]
+        cy, cx = (y0 + y1) // 2, (x0 + x1) // 2
+        crop = image[max(y0, cy - 100):min(y1, cy + 100), max(x0, cx - 150):min(x1, cx + 150)]
+        ax.imshow(crop, cmap="grey", interpolation="nearest")
+        ax.set_title(f"{side}: pattern (centre of the ROI, 1:1 px), speckle {sp['speckle_size_px']:.2f} px",
+                     fontsize=8)
+        ax.axis("off")
+        ax = axes[r, 1]
+        edges = np.asarray(sp["bin_edges"])
+        ax.bar(edges[:-1], sp["histogram"], width=np.diff(edges), align="edge", color="0.4")
+        ax.axvline(sp["mean_grey"], color="C1", label=f"mean {sp['mean_grey']:.1f}")
+        ax.set_xlabel("grey level", fontsize=8)
+        ax.set_title(f"histogram: contrast (std/mean) {sp['contrast']:.2f}, saturated "
+                     f"{100 * sp['saturated_fraction']:.2f} %", fontsize=8)
+        ax.legend(fontsize=7)
+        ax = axes[r, 2]
+        model = result.noise_models[side]
+        if model.bin_grey.size:
+            ax.plot(model.bin_grey, np.sqrt(model.bin_variance), "o", ms=3, label="static pair, per grey bin")
+        g = np.linspace(0, max(float(edges[-1]), 1.0), 100)
+        ax.plot(g, model.sigma_at(g), "-", label=f"model ({model.source})")
+        ax.set_xlabel("grey level", fontsize=8)
+        ax.set_ylabel("noise σ (grey)", fontsize=8)
+        ax.set_title(f"sensor noise: σ = {model.sigma_grey:.3g} grey", fontsize=8)
+        ax.legend(fontsize=7)
+    fig.tight_layout()
+    return _png(fig, out / "speckle.png")
+
+
+def _whatif_figure(result, out: Path) -> str | None:
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    rows = [r for r in result.whatif if "displacement_noise" in r]
+    if not rows:
+        return None
+    fig, axes = plt.subplots(1, 2, figsize=(12, 0.45 * len(rows) + 1.2))
+    labels = [r["label"] for r in rows][::-1]
+    y = np.arange(len(rows))
+    unit = "µm" if result.inputs.stereo else "px"
+    disp = [r["displacement_noise"] for r in rows][::-1]
+    bound = [r["pan_bound_figure"] for r in rows][::-1]
+    axes[0].barh(y, disp, color=["C2" if r.get("rank") == 1 else "C0" for r in rows][::-1], label="twin")
+    axes[0].plot(bound, y, "k|", ms=14, label="Pan-type bound")
+    axes[0].set_yticks(y, labels, fontsize=7)
+    axes[0].set_xlabel(f"displacement noise, RMS of components ({unit})", fontsize=8)
+    axes[0].legend(fontsize=7)
+    axes[1].barh(y, [r["strain_noise_ue"] for r in rows][::-1], color="C3")
+    axes[1].set_yticks(y, [""] * len(rows))
+    axes[1].set_xlabel("strain noise, RMS of E11, E22 (µε)", fontsize=8)
+    fig.tight_layout()
+    return _png(fig, out / "whatif.png")
+
+
+def _star_figure(result, out: Path) -> str | None:
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    res = result.prediction.get("resolution")
+    if not res or not res.get("curve_period_px"):
+        return None
+    fig, ax = plt.subplots(figsize=(6, 3))
+    ax.plot(res["curve_period_px"], res["curve_ratio"], "-", lw=1)
+    ax.axhline(0.9, color="0.5", ls="--", lw=0.8)
+    if res.get("l10_px") and math.isfinite(res["l10_px"]):
+        ax.axvline(res["l10_px"], color="C3", lw=0.8, label=f"l10 = {res['l10_px']:.1f} px")
+        ax.legend(fontsize=8)
+    ax.set_xscale("log")
+    ax.set_xlabel("Star period (px)", fontsize=8)
+    ax.set_ylabel("measured / imposed amplitude", fontsize=8)
+    ax.set_title("spatial resolution on your pattern (DIC Challenge 2.0 Star)", fontsize=9)
+    return _png(fig, out / "star.png")
+
+
+def report_markdown(result, figures: dict) -> str:
+    s = result.summary()
+    stereo = result.inputs.stereo
+    unit = "µm" if stereo else "px"
+    names = ["U_um", "V_um", "W_um"] if stereo else ["u_px", "v_px"]
+    p = result.prediction
+    lines = ["# Digital twin of your rig", ""]
+    kind = "stereo rig" if stereo else "one camera (2-D DIC)"
+    lines += [f"- **rig**: {kind}" + (f" from `{result.inputs.calibration}`" if result.inputs.calibration else ""),
+              f"- **images**: " + ", ".join(f"{k} `{Path(v).name}`" for k, v in s["inputs"].items()),
+              f"- **bit depth**: {result.inputs.bit_depth}; **ROI**: {result.inputs.roi or 'whole image'}"
+              f"{' (with a mask)' if result.inputs.mask is not None else ''}",
+              f"- **settings**: subset {result.settings.subset_px} px, step {s['dic_step_px']} px, order "
+              f"{result.settings.order}, {result.settings.interpolation}, strain window "
+              f"{result.settings.strain_window} points (virtual strain gauge {_fmt(p.get('vsg_px'))} px)",
+              f"- twin repeats: {p.get('repeats')} static pair(s), {p.get('points')} points", ""]
+    lines += ["## Predicted noise floor", "",
+              f"Static noise (1σ over the ROI, mean removed) of the instrument with your settings on the twin; "
+              f"the Pan-type bound (Pan et al. 2008, first-order subsets, exact gradients) is a floor no setting "
+              f"beats.", "", "| quantity | twin prediction | Pan-type bound |" +
+              (" your static pair (measured) | predicted / measured |" if result.comparison else ""),
+              "|---|---|---|" + ("---|---|" if result.comparison else "")]
+    for n in names:
+        row = f"| {n.replace('_um', ' (µm)').replace('_px', ' (px)')} | {_fmt(p['noise'].get(n))} | " \
+              f"{_fmt(p['pan_bound'].get(n))} |"
+        if result.comparison:
+            c = result.comparison[n]
+            row += f" {_fmt(c['measured'])} | {_fmt(c['ratio'])} |"
+        lines.append(row)
+    for n in ("E11", "E22", "E12"):
+        if n in p["strain_ue"]:
+            row = f"| {n} (µε) | {_fmt(p['strain_ue'][n])} | - |"
+            if result.comparison and f"{n}_ue" in result.comparison:
+                c = result.comparison[f"{n}_ue"]
+                row += f" {_fmt(c['measured'])} | {_fmt(c['ratio'])} |"
+            lines.append(row)
+    lines.append("")
+    if "bias" in p:
+        b = p["bias"]
+        lines.append(f"- **interpolation bias** on your pattern (noise-free sub-pixel shifts 0.1-0.5 px): max "
+                     f"{_fmt(b['max_abs_px'])} px" + (f" = {_fmt(b.get('max_abs_um'))} µm" if b.get("max_abs_um")
+                                                       else ""))
+    if "resolution" in p:
+        r = p["resolution"]
+        lines.append(f"- **spatial resolution** l10 on your pattern: {_fmt(r.get('l10_px'))} px"
+                     + (f" = {_fmt(r.get('l10_mm'))} mm" if r.get("l10_mm") else "")
+                     + f" (theory for the subset and order: {_fmt(p.get('l10_theory_px'))} px)")
+    if p.get("mm_per_px"):
+        lines.append(f"- scale at the specimen: {p['mm_per_px'] * 1e3:.2f} µm per pixel")
+    lines.append("")
+    if figures.get("maps"):
+        lines += ["## Maps over the ROI", "", f"![predicted noise maps]({figures['maps']})", ""]
+    lines += ["## What if", "",
+              "Each row changes one setting of yours, measured on the same twin noise draws; ranked by the predicted "
+              f"change of the {result.whatif[0].get('objective', 'displacement') if result.whatif else ''} "
+              "noise. l10 (theory) and the virtual strain gauge say what each costs in spatial resolution.", ""]
+    if result.whatif:
+        lines += [f"| rank | change | displacement noise ({unit}) | vs yours | Pan-type bound ({unit}) | "
+                  "strain noise (µε) | l10 theory (px) | VSG (px) |", "|---|---|---|---|---|---|---|---|"]
+        for r in result.whatif:
+            if "displacement_noise" not in r:
+                lines.append(f"| - | {r['label']} | {r.get('reason', '')} | | | | | |")
+                continue
+            change = "-" if r["label"].startswith("baseline") else (
+                f"{100 * r['change']:+.0f} %" if r.get("change") is not None and math.isfinite(r["change"]) else "-")
+            lines.append(f"| {r.get('rank') or ''} | {r['label']} | {_fmt(r['displacement_noise'])} | {change} | "
+                         f"{_fmt(r['pan_bound_figure'])} | {_fmt(r['strain_noise_ue'])} | "
+                         f"{_fmt(r['l10_theory_px'])} | {_fmt(r['vsg_px'])} |")
+        lines.append("")
+        if figures.get("whatif"):
+            lines += [f"![what-if]({figures['whatif']})", ""]
+    if result.whatif_real:
+        w = result.whatif_real
+        lines += [f"**Top recommendation applied to your static pair** ({w['label']}): measured "
+                  f"{_fmt(w['measured_before'])} -> {_fmt(w['measured_after'])} "
+                  f"({100 * w['measured_change']:+.0f} %); the twin predicted {_fmt(w['predicted_before'])} -> "
+                  f"{_fmt(w['predicted_after'])} ({100 * w['predicted_change']:+.0f} %).", ""]
+    lines += ["## Speckle quality", ""]
+    for side, sp in result.speckle.items():
+        model = result.noise_models[side]
+        lines.append(f"- **{side}**: speckle size {sp['speckle_size_px']:.2f} px (autocorrelation radius "
+                     f"{sp['autocorrelation_radius_px']:.2f} px), mean grey {sp['mean_grey']:.1f}, contrast "
+                     f"{sp['contrast']:.2f}, 1-99 % {sp['p1_grey']:.0f}-{sp['p99_grey']:.0f}, MIG "
+                     f"{sp['mig_grey_per_px']:.2f} grey/px, median SSSIG {sp['sssig_median_grey2']:.3g} grey², "
+                     f"saturated {100 * sp['saturated_fraction']:.2f} %; noise σ {model.sigma_grey:.3g} grey "
+                     f"({model.source}; read {model.read_noise_grey:.3g} grey"
+                     + (f", gain {model.electrons_per_grey:.3g} e-/grey" if model.electrons_per_grey else "")
+                     + (f"; illumination change between the exposures {model.smooth_change_grey:.2f} grey, not "
+                        "counted as noise" if model.smooth_change_grey else "") + ")")
+        lines.append(f"  - subset advice: {sp['advice']['message']}")
+    lines += ["", f"![speckle quality]({figures['speckle']})", ""]
+    if figures.get("star"):
+        lines += [f"![Star curve]({figures['star']})", ""]
+    notes = s["notes"]
+    if notes:
+        lines += ["## How the twin was made", ""] + [f"- {n}" for n in notes] + [""]
+    lines += ["## Timings", "", ", ".join(f"{k} {v:.1f} s" for k, v in result.timings_s.items()), ""]
+    return "\n".join(lines)
+
+
+def write_points_csv(result, path: Path) -> None:
+    maps = result.maps
+    names = ["U_um", "V_um", "W_um"] if result.inputs.stereo else ["u_px", "v_px"]
+    header = ["x_px", "y_px"] + [f"predicted_sigma_{n}" for n in names] + [f"pan_bound_{n}" for n in names] + \
+        [f"measured_{n}" for n in names]
+    n = len(maps["x_px"])
+    empty = np.full((n, len(names)), np.nan)
+    cols = [maps["x_px"], maps["y_px"], *maps["per_point"].T,
+            *(maps["pan_bound"] if maps.get("pan_bound") is not None else empty).T,
+            *(maps["measured"] if maps.get("measured") is not None else empty).T]
+    with atomic_writer(path, "w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(header)
+        for row in zip(*cols):
+            w.writerow(["" if not np.isfinite(v) else f"{v:.6g}" for v in row])
+
+
+def write_twin_report(result, out_dir) -> Path:
+    """Write the twin's report into ``out_dir`` (created); returns the report.html path."""
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    figures = {"speckle": _speckle_figure(result, out), "maps": _maps_figure(result, out),
+               "whatif": _whatif_figure(result, out), "star": _star_figure(result, out)}
+    with atomic_writer(out / "twin.json", "w") as f:
+        json.dump(result.summary(), f, indent=1)
+    write_points_csv(result, out / "twin_points.csv")
+    text = report_markdown(result, figures)
+    with atomic_writer(out / "report.md", "w") as f:
+        f.write(text)
+    return write_html_report(out / "report.html", "Digital twin of your rig", text, out)

@@ -92,6 +92,7 @@ def rank(rows: list[dict], objective: str = "displacement") -> list[dict]:
     key = "displacement_noise" if objective == "displacement" else "strain_noise_ue"
     base = rows[0][key]
     for row in rows:
+        row["objective"] = objective
         row["change"] = (row[key] / base - 1.0) if (base and np.isfinite(base) and np.isfinite(row[key])) else math.nan
     rest = sorted(rows[1:], key=lambda r: (math.inf if not np.isfinite(r["change"]) else r["change"]))
     k = 1
