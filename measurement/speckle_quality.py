@@ -235,9 +235,9 @@ def subset_sssig(image: np.ndarray, x_px, y_px, subset_px: int, noise_sigma_grey
                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """SSSIG in x and y and the mean intensity gradient of the subsets centred on points.
 
-    Gradients are central differences (``np.gradient``); white noise of ``sigma`` adds ``sigma^2 / 2`` to each
-    squared central difference on average, which is removed (``SSSIG - n sigma^2 / 2``, floored at 0) so the
-    figures describe the pattern, not the noise.
+    Gradients are those of the band-limited interpolant (:func:`gradients`); white noise of ``sigma`` adds
+    ``sigma^2 pi^2 / 3`` to each squared gradient on average, which is removed (floored at 0) so the figures
+    describe the pattern, not the noise.
 
     Parameters
     ----------
@@ -253,7 +253,7 @@ def subset_sssig(image: np.ndarray, x_px, y_px, subset_px: int, noise_sigma_grey
     -------
     sssig_x, sssig_y : ndarray, shape (N,), grey^2
     mig : ndarray, shape (N,), grey/px
-        Mean gradient magnitude over the subset (Pan et al. 2010's MIG, central differences).
+        Mean gradient magnitude over the subset (Pan et al. 2010's MIG, with these gradients).
     """
     values = _image(image)
     subset_px = _odd(subset_px, "subset_px")
@@ -263,17 +263,47 @@ def subset_sssig(image: np.ndarray, x_px, y_px, subset_px: int, noise_sigma_grey
     rows, cols = values.shape
     if x.size and (x.min() < half or y.min() < half or x.max() >= cols - half or y.max() >= rows - half):
         raise ValueError(f"a subset of {subset_px} px centred on a given point leaves the {cols} x {rows} px image")
-    gy, gx = np.gradient(np.nan_to_num(values))
+    gy, gx = gradients(values)
     n = float(subset_px * subset_px)
 
     def box(a):
         return ndimage.uniform_filter(a, size=subset_px, mode="constant")[y, x] * n
 
     sigma2 = float(noise_sigma_grey) ** 2
-    sx = np.clip(box(gx * gx) - n * sigma2 / 2.0, 0.0, None)
-    sy = np.clip(box(gy * gy) - n * sigma2 / 2.0, 0.0, None)
+    sx = np.clip(box(gx * gx) - n * sigma2 * SPECTRAL_NOISE_GAIN, 0.0, None)
+    sy = np.clip(box(gy * gy) - n * sigma2 * SPECTRAL_NOISE_GAIN, 0.0, None)
     mig = box(np.hypot(gx, gy)) / n
     return sx, sy, mig
+
+
+def _spectral_derivative(values: np.ndarray, axis: int) -> np.ndarray:
+    """Derivative of the band-limited interpolant along one axis (mirror-extended, so no jump at the edges)."""
+    n = values.shape[axis]
+    extended = np.concatenate([values, np.flip(values, axis=axis)], axis=axis)
+    spectrum = np.fft.rfft(extended, axis=axis)
+    omega = 2.0 * np.pi * np.fft.rfftfreq(2 * n)
+    if (2 * n) % 2 == 0:
+        omega[-1] = 0.0                 # the Nyquist term has no derivative a real signal can show
+    shape = [1] * values.ndim
+    shape[axis] = omega.size
+    derivative = np.fft.irfft(spectrum * (1j * omega).reshape(shape), n=2 * n, axis=axis)
+    return np.take(derivative, np.arange(n), axis=axis)
+
+
+#: Mean square gain of the spectral derivative on white noise (pi^2 / 3 per axis).
+SPECTRAL_NOISE_GAIN = np.pi ** 2 / 3.0
+
+
+def gradients(image: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``(d/dy, d/dx)`` of the image's band-limited interpolant (grey/px): the exact gradient of the pattern the
+    pixels sample (up to aliasing), which the instrument's B-spline gradients approach.
+
+    A speckle of 3-4 px puts much of its energy near a third of the sampling frequency, where the plain central
+    difference ``(f(1) - f(-1)) / 2`` reads the gradient 15-35 % low (its gain is ``sin(w) / w``) and so would
+    put a "bound" above what the instrument achieves.
+    """
+    values = np.nan_to_num(np.asarray(image, dtype=np.float64))
+    return _spectral_derivative(values, 0), _spectral_derivative(values, 1)
 
 
 def pan_bound_px(sssig: np.ndarray, noise_sigma_grey: float) -> np.ndarray:
