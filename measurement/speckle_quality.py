@@ -108,7 +108,7 @@ class NoiseModel:
     def sigma_at(self, grey) -> np.ndarray:
         """Noise standard deviation at grey level(s) ``grey``."""
         grey = np.asarray(grey, dtype=np.float64)
-        shot = 0.0 if not self.electrons_per_grey else np.clip(grey, 0.0, None) / self.electrons_per_grey
+        shot = 0.0 * grey if not self.electrons_per_grey else np.clip(grey, 0.0, None) / self.electrons_per_grey
         return np.sqrt(self.read_noise_grey ** 2 + shot)
 
 

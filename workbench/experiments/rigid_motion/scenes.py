@@ -419,6 +419,9 @@ def render_stereo_states(truth, surfaces_of_state, n_states: int, out_dir: Path,
             if render_log is not None:
                 render_log.append({"state": k, "camera": side, "renderer": made_by, **entry})
             image = rendered if illumination is None else illumination.apply(rendered, k)
+            # Reconstruction-filter and Monte-Carlo ringing can dip a dark pixel a little below 0; a sensor holds no
+            # negative charge, and shot noise needs the exposure >= 0.
+            image = np.maximum(image, 0.0)
             names[side] = f"{side}_{k:0{digits}d}.png"
             atomic_write_image(out_dir / names[side], to_image_dtype(noise.apply(image, seed=image_seed), 8))
         files.append(names)
