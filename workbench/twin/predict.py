@@ -117,15 +117,17 @@ def _inside(shape, x, y, half) -> np.ndarray:
     return (x >= half) & (y >= half) & (x < shape[1] - half) & (y < shape[0] - half)
 
 
-def pan_bound_2d(image: np.ndarray, x_px, y_px, subset: int, noise_model) -> dict:
-    """Pan bound of u and v over points (RMS over the points of the per-point bound), px."""
+def pan_bound_2d(image: np.ndarray, x_px, y_px, subset: int, noise_model) -> tuple[dict, np.ndarray]:
+    """Pan bound of u and v: RMS over the points, and per point (N, 2), px."""
     x = np.rint(np.asarray(x_px)).astype(np.int64)
     y = np.rint(np.asarray(y_px)).astype(np.int64)
     ok = _inside(image.shape, x, y, subset // 2)
     sigma = noise_model.sigma_at(_subset_mean(image, x[ok], y[ok], subset))
     sx, sy, _ = subset_sssig(image, x[ok], y[ok], subset, float(np.median(sigma)))
     bx, by = pan_bound_px(sx, 1.0) * sigma, pan_bound_px(sy, 1.0) * sigma
-    return {"u_px": _rms(bx), "v_px": _rms(by)}
+    per_point = np.full((x.size, 2), np.nan)
+    per_point[ok] = np.column_stack([bx, by])
+    return {"u_px": _rms(bx), "v_px": _rms(by)}, per_point
 
 
 def _rms(values) -> float:

@@ -64,20 +64,22 @@ def _maps_figure(result, out: Path) -> str | None:
 
     maps = result.maps
     per_point = maps.get("per_point")
-    if per_point is None or not np.isfinite(per_point).any():
-        return None
     names = ["U", "V", "W"] if result.inputs.stereo else ["u", "v"]
     unit = "µm" if result.inputs.stereo else "px"
-    rows = [("twin: predicted 1σ (local RMS, 5 x 5 points)", per_point)]
+    rows = []
+    if per_point is not None and np.isfinite(per_point).any():     # needs two twin repeats or more
+        rows.append(("twin: predicted 1σ (local RMS, 5 x 5 points)", per_point))
     if maps.get("pan_bound") is not None:
         rows.append(("Pan-type bound per point", maps["pan_bound"]))
     if maps.get("measured") is not None:
         rows.append(("your static pair: measured value (mean removed)", maps["measured"]))
+    if not rows:
+        return None
     fig, axes = plt.subplots(len(rows), len(names), figsize=(4.2 * len(names), 2.9 * len(rows)), squeeze=False)
     for r, (title, values) in enumerate(rows):
         for c, name in enumerate(names):
             grid, extent = _grid(maps["x_px"], maps["y_px"], values[:, c])
-            if r == 0:
+            if title.startswith("twin"):
                 grid = _local_rms(grid)       # a per-point spread from a few repeats is itself noisy
             ax = axes[r, c]
             finite = grid[np.isfinite(grid)]

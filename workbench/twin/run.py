@@ -86,6 +86,8 @@ class TwinResult:
     scene: TwinScene | None = field(default=None, repr=False)
     timings_s: dict = field(default_factory=dict)
     notes: list = field(default_factory=list)
+    #: The mask of points of interest the instrument used (the user's, and the automatic ROI's), or None.
+    mask: np.ndarray | None = field(default=None, repr=False)
 
     @property
     def unit(self) -> str:
@@ -345,7 +347,7 @@ def run_twin(left, right=None, static_left=None, static_right=None, *, calibrati
                                             dic.subset_size, noise_models)
     else:
         bound, bound_map = pan_bound_2d(twin_images["left"], base_run.x_px, base_run.y_px, dic.subset_size,
-                                        noise_models["left"]), None
+                                        noise_models["left"])
     prediction = {"noise": pooled.noise, "noise_detrended": pooled.detrended, "strain_ue": pooled.strain_ue,
                   "pan_bound": bound, "repeats": repeats, "points": base_run.points,
                   "mm_per_px": mm_per_px, "vsg_px": vsg_px(dic, settings.strain_window),
@@ -400,7 +402,7 @@ def run_twin(left, right=None, static_left=None, static_right=None, *, calibrati
                     b, _ = pan_bound_stereo(scene.rig, twin_images["left"], twin_images["right"], r0.x_px, r0.y_px,
                                             r0.right_xy_px, r0.X_ref_mm, s.subset_size, noise_models)
                 else:
-                    b = pan_bound_2d(twin_images["left"], r0.x_px, r0.y_px, s.subset_size, noise_models["left"])
+                    b, _ = pan_bound_2d(twin_images["left"], r0.x_px, r0.y_px, s.subset_size, noise_models["left"])
             rows.append({"label": label, "subset_px": s.subset_size, "step_px": s.step, "order": s.order,
                          "strain_window": window, "noise": run_noise, "strain_ue": run_strain, "pan_bound": b,
                          "displacement_noise": displacement_figure(run_noise),
@@ -443,4 +445,4 @@ def run_twin(left, right=None, static_left=None, static_right=None, *, calibrati
     maps = {"x_px": base_run.x_px, "y_px": base_run.y_px, "per_point": pooled.per_point, "pan_bound": bound_map,
             "measured": None if measured is None else measured.values}
     return TwinResult(inputs, settings, speckle, noise_models, prediction, None if measured is None else
-                      measured.summary(), comparison, rows, whatif_real, maps, scene, times, notes)
+                      measured.summary(), comparison, rows, whatif_real, maps, scene, times, notes, mask_arr)
