@@ -266,11 +266,26 @@ def subset_sssig(image: np.ndarray, x_px, y_px, subset_px: int, noise_sigma_grey
     rows, cols = values.shape
     if x.size and (x.min() < half or y.min() < half or x.max() >= cols - half or y.max() >= rows - half):
         raise ValueError(f"a subset of {subset_px} px centred on a given point leaves the {cols} x {rows} px image")
-    gy, gx = gradients(values)
+    return sssig_from_gradients(gradients(values), x, y, subset_px, noise_sigma_grey)
+
+
+def sssig_from_gradients(grads: tuple[np.ndarray, np.ndarray], x, y, subset_px: int, noise_sigma_grey: float = 0.0
+                         ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`subset_sssig` from gradients already computed (``(d/dy, d/dx)`` of :func:`gradients`): several subset
+    sizes over one image need the gradients once."""
+    gy, gx = grads
+    x = np.asarray(x, dtype=np.int64).ravel()
+    y = np.asarray(y, dtype=np.int64).ravel()
     n = float(subset_px * subset_px)
 
+    half = subset_px // 2
+
     def box(a):
-        return ndimage.uniform_filter(a, size=subset_px, mode="constant")[y, x] * n
+        # summed-area table: the subset sums at the points only (subsets lie inside the image)
+        table = np.zeros((a.shape[0] + 1, a.shape[1] + 1))
+        table[1:, 1:] = a.cumsum(axis=0).cumsum(axis=1)
+        y0, y1, x0, x1 = y - half, y + half + 1, x - half, x + half + 1
+        return table[y1, x1] - table[y0, x1] - table[y1, x0] + table[y0, x0]
 
     sigma2 = float(noise_sigma_grey) ** 2
     sx = np.clip(box(gx * gx) - n * sigma2 * SPECTRAL_NOISE_GAIN, 0.0, None)
@@ -444,12 +459,13 @@ def subset_advice(image: np.ndarray, x_px, y_px, noise_sigma_grey: float, speckl
     x = np.asarray(x_px, dtype=np.int64)
     y = np.asarray(y_px, dtype=np.int64)
     needed = None
+    grads = gradients(values)
     for subset in range(max(11, by_speckle if by_speckle % 2 else by_speckle + 1), limit + 1, 2):
         half = subset // 2
         inside = (x >= half) & (y >= half) & (x < cols - half) & (y < rows - half)
         if not inside.any():
             break
-        sx, sy, _ = subset_sssig(values, x[inside], y[inside], subset, noise_sigma_grey)
+        sx, sy, _ = sssig_from_gradients(grads, x[inside], y[inside], subset, noise_sigma_grey)
         bound = np.median(np.maximum(pan_bound_px(sx, noise_sigma_grey), pan_bound_px(sy, noise_sigma_grey)))
         if bound <= target_px:
             needed = subset
@@ -462,7 +478,7 @@ def subset_advice(image: np.ndarray, x_px, y_px, noise_sigma_grey: float, speckl
                             "the bias: image the pattern larger (3-5 px speckles)")
     if needed is None:
         # extrapolate: the bound falls as 1/subset for a uniform pattern
-        sx, sy, _ = subset_sssig(values, x, y, 11, noise_sigma_grey) if limit >= 11 else (np.zeros(1),) * 3
+        sx, sy, _ = sssig_from_gradients(grads, x, y, 11, noise_sigma_grey) if limit >= 11 else (np.zeros(1),) * 3
         bound11 = float(np.median(np.maximum(pan_bound_px(sx, noise_sigma_grey), pan_bound_px(sy, noise_sigma_grey))))
         need = max(by_speckle, int(2 * math.ceil((11 * bound11 / target_px - 1) / 2) + 1)) \
             if math.isfinite(bound11) else by_speckle

@@ -25,7 +25,7 @@ from ..experiments.dic2d.star import theoretical_l10_px
 from .measure import strain_noise
 
 #: The half-step row is skipped above this many baseline points (it would quadruple the work).
-MAX_POINTS_HALF_STEP = 20_000
+MAX_POINTS_HALF_STEP = 100_000
 OBJECTIVES = ("displacement", "strain")
 
 
