@@ -84,11 +84,12 @@ def run_set(name: str, data: Path, out: Path) -> dict:
 
 def markdown(records: list[dict]) -> str:
     lines = ["# The digital twin on real static pairs", "",
-             "Predicted (twin) vs measured (the instrument on the real static pair) static noise, 1σ over the ROI, mean "
-             f"removed; goal: within {100 * GOAL:.0f} % for every displacement component. Data: DICe's regression "
+             "Predicted (twin) vs measured (the instrument on the real static pair) static noise, 1σ over the ROI, "
+             f"mean removed; goal: within {100 * GOAL:.0f} % for every displacement component. Data: DICe's regression "
              "images (BSD 3-Clause), fetched by `scripts/fetch_twin_data.sh`; reproduce with "
              "`.venv/bin/python benchmarks/twin_real.py`.", "",
-             "| set | component | predicted | measured | predicted / measured | within 25 % |", "|---|---|---|---|---|---|"]
+             "| set | component | predicted | measured | predicted / measured | within 25 % |",
+             "|---|---|---|---|---|---|"]
     for r in records:
         for key, row in r["rows"].items():
             unit = "µε" if key.endswith("_ue") else ("µm" if r["unit"] == "um" else "px")

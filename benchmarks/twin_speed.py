@@ -86,7 +86,8 @@ def main(argv=None) -> int:
                "comparison": {k: v["ratio"] for k, v in (doc["comparison"] or {}).items()}}
     (args.out / "summary.json").write_text(json.dumps(summary, indent=1))
     lines = ["# Twin speed: a 5 MP stereo rig", "",
-             f"`workbench twin` on two {files['shape'][1]} x {files['shape'][0]} px cameras ({megapixels:.2f} MP each), "
+             f"`workbench twin` on two {files['shape'][1]} x {files['shape'][0]} px cameras ({megapixels:.2f} MP "
+             "each), "
              f"subset 33, step 8, order 2, automatic ROI, 2 twin repeats, what-if table "
              f"({summary['whatif_rows']} rows measured) and the top recommendation applied to the pair: "
              f"**{wall / 60:.1f} min** wall on this machine (goal <= 10 min on 2 cores), "

@@ -194,7 +194,8 @@ def test_a_static_pair_that_moved_is_refused_with_its_motion(tmp_path):
     moved = apply_sensor_noise(fourier_shift(clean, (0.6, 0.0)), read_noise_grey=1.0, seed=9)
     a, b = _write(tmp_path / "a.png", image), _write(tmp_path / "b.png", moved)
     with pytest.raises(NotStaticError, match=r"the static pair a.png -> b.png is not static: its mean motion is "
-                                             r"\(\+0\.6\d+, [+-]0\.0\d+\) px, above the 0\.\d+ px that the image noise"):
+                                             r"\(\+0\.6\d+, [+-]0\.0\d+\) px, above the 0\.\d+ px that the "
+                                             r"image noise"):
         run_twin(a, static_left=b, settings=TwinSettings(subset_px=21))
 
 
@@ -230,3 +231,49 @@ def test_cli_twin_writes_the_report_and_says_errors_in_one_line(tmp_path, capsys
     assert header.startswith("x_px,y_px,predicted_sigma_u_px")
     assert main(["twin", "--left", str(tmp_path / "nope.png"), "--out", str(tmp_path / "o2")]) == 2
     assert "nope.png" in capsys.readouterr().err
+
+
+def test_lens_rows_of_a_thin_lens_rig(rendered_rig):
+    """With the lens stated (f/8, pixel pitch of the quarter-scale sensor), the what-if table gets one stop up and
+    down and the focus moved: one stop up halves the light ((N0/N)^2 = 0.5), halves the defocus blur's variance
+    and sets diffraction to 0.42 lambda N (exact to 1e-9); fewer photons raise the predicted noise, one stop down
+    lowers it; an optics row is never applied to the recorded pair."""
+    from workbench.twin import TwinSettings, run_twin
+    from workbench.twin.optics import Lens
+
+    ex = rendered_rig
+    lens = Lens(f_number=8.0, pixel_pitch_um=13.8)
+    result = run_twin(ex / "left_00.png", ex / "right_00.png", ex / "left_01.png", ex / "right_01.png",
+                      calibration=ex / "calibration.json", auto_roi=True, repeats=1, bias=False, resolution=False,
+                      settings=TwinSettings(subset_px=21, step_px=8), lens=lens)
+    rows = {r["label"]: r for r in result.whatif}
+    base = rows["baseline (your settings)"]["displacement_noise"]
+    up, down = rows["f-number 8 -> 11"], rows["f-number 8 -> 5.7"]
+    assert up["optics"]["left"]["light_factor"] == pytest.approx(0.5)
+    assert down["optics"]["left"]["light_factor"] == pytest.approx(2.0)
+    # defocus scales with the aperture F/N, diffraction with N: sigma^2 = defocus^2 + (0.42 lambda N / pitch)^2
+    d0, d1 = (0.42 * 0.55 * n / 13.8 for n in (8.0, 8.0 * np.sqrt(2)))
+    o = up["optics"]["left"]
+    assert o["sigma_new_px"] ** 2 == pytest.approx((o["sigma_now_px"] ** 2 - d0 ** 2) / 2 + d1 ** 2, rel=1e-9)
+    assert o["extra_blur_px"] == pytest.approx(np.sqrt(max(o["sigma_new_px"] ** 2 - o["sigma_now_px"] ** 2, 0)))
+    assert down["displacement_noise"] < base < up["displacement_noise"]
+    assert any(label.startswith("focus ") for label in rows)
+    assert result.whatif_real is None or not result.whatif_real["label"].startswith(("f-number", "focus"))
+
+
+def test_a_generated_pattern_twin_has_the_photographs_statistics(tmp_path):
+    """``texture="generated"``: the twin's pattern is an analytic speckle whose autocorrelation size is within 10 %
+    of the photograph's and whose mean and standard deviation are within 3 %; the choice is stated in the notes."""
+    from measurement.speckle_quality import grey_statistics, speckle_size_px
+    from workbench.twin import TwinSettings, run_twin
+
+    result = run_twin(DATA / "staticb_cam0_0.png", static_left=DATA / "staticb_cam0_1.png", repeats=1, whatif=False,
+                      bias=False, resolution=False, texture="generated", settings=TwinSettings(subset_px=27, step_px=8))
+    pattern = result.scene.clean["left"]
+    photo = read_grey(DATA / "staticb_cam0_0.png").astype(float)
+    assert speckle_size_px(pattern) == pytest.approx(speckle_size_px(photo), rel=0.10)
+    g, p = grey_statistics(pattern), grey_statistics(photo)
+    assert g.mean_grey == pytest.approx(p.mean_grey, rel=0.03) and g.std_grey == pytest.approx(p.std_grey, rel=0.03)
+    assert any("generated Gaussian speckle" in n for n in result.notes)
+    with pytest.raises(ValueError, match="texture must be 'photo' or 'generated', got 'paint'"):
+        run_twin(DATA / "staticb_cam0_0.png", texture="paint")

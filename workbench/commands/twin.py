@@ -12,7 +12,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from workbench.commands.options import (input_file, output_folder, positive_int_arg, roi_arg, seed_arg, subset_arg)
+from workbench.commands.options import (input_file, output_folder, positive_float_arg, positive_int_arg, roi_arg,
+                                        seed_arg, subset_arg)
 
 
 def _window_arg(text: str) -> int | None:
@@ -60,6 +61,13 @@ def add_parser(sub) -> None:
     tw.add_argument("--no-whatif", action="store_true", help="skip the what-if table")
     tw.add_argument("--allow-coarse", action="store_true",
                     help="go on when the speckle is too fine or too coarse for any subset")
+    tw.add_argument("--texture", choices=("photo", "generated"), default="photo",
+                    help="the twin's pattern: your photograph (default) or a generated speckle with its statistics")
+    tw.add_argument("--f-number", type=positive_float_arg,
+                    help="the lenses' f-number (with --pixel-pitch-um: adds f-number and focus rows to the what-if)")
+    tw.add_argument("--pixel-pitch-um", type=positive_float_arg, help="the sensor's pixel pitch, µm")
+    tw.add_argument("--wavelength-nm", type=positive_float_arg, default=550.0,
+                    help="light wavelength for diffraction, nm (default 550)")
     tw.add_argument("--seed", type=seed_arg, default=0)
     tw.add_argument("--out", type=Path, required=True, help="output folder")
 
@@ -74,6 +82,13 @@ def twin_command(args) -> int:
         if value is not None:
             input_file(value, f"--{option.replace('_', '-')}")
     output_folder(args.out)
+    if (args.f_number is None) != (args.pixel_pitch_um is None):
+        raise ValueError("--f-number and --pixel-pitch-um go together (the lens rows need both)")
+    lens = None
+    if args.f_number is not None:
+        from workbench.twin.optics import Lens
+
+        lens = Lens(args.f_number, args.pixel_pitch_um, args.wavelength_nm)
     start = time.perf_counter()
 
     def progress(message: str) -> None:
@@ -83,7 +98,8 @@ def twin_command(args) -> int:
                       roi=args.roi, mask=args.mask, auto_roi=args.auto_roi,
                       settings=TwinSettings(args.subset, args.step, args.order, args.interp, args.strain_window),
                       bit_depth=args.bit_depth, repeats=args.repeats, seed=args.seed, whatif=not args.no_whatif,
-                      objective=args.objective, allow_coarse=args.allow_coarse, progress=progress)
+                      objective=args.objective, allow_coarse=args.allow_coarse, lens=lens, texture=args.texture,
+                      progress=progress)
     html = write_twin_report(result, args.out)
     unit = result.unit
     print("predicted static noise (1 sigma): " + ", ".join(

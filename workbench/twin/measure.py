@@ -59,6 +59,9 @@ class StaticNoise:
         The points' match in the right reference image (stereo), px.
     mean_motion_uv_px : (float, float)
         Mean (u, v) of the left camera's temporal match, px.
+    right_motion_uv_px : (float, float)
+        Mean motion of the right camera's image between the exposures (stereo), px: the static right match less the
+        reference right match.
     """
 
     kind: str
@@ -75,6 +78,7 @@ class StaticNoise:
     X_ref_mm: np.ndarray | None = field(default=None, repr=False)
     right_xy_px: np.ndarray | None = field(default=None, repr=False)
     mean_motion_uv_px: tuple = (0.0, 0.0)
+    right_motion_uv_px: tuple = (0.0, 0.0)
 
     def summary(self) -> dict:
         out = {"kind": self.kind, **{k: float(v) for k, v in self.noise.items()},
@@ -163,9 +167,12 @@ def static_noise_stereo(rig, left_ref, right_ref, left_static, right_static, set
     motion_sigma = float(np.sqrt(0.5 * (np.var(lm.u[conv]) + np.var(lm.v[conv])))) if conv.any() else math.nan
     rm = shape.right_match
     right_xy = np.column_stack([rm.x + rm.u, rm.y + rm.v]).astype(np.float64)
+    du, dv = state.right_match.u - rm.u, state.right_match.v - rm.v
+    both = np.isfinite(du) & np.isfinite(dv)
+    right_uv = (float(np.mean(du[both])), float(np.mean(dv[both]))) if both.any() else (0.0, 0.0)
     return StaticNoise("stereo", noise, detrended, strain, float(np.hypot(*mean_uv)), motion_sigma, int(ok.sum()),
                        int(bad.sum()), shape.x.astype(np.float64), shape.y.astype(np.float64), values, shape.X_mm,
-                       right_xy, mean_uv)
+                       right_xy, mean_uv, right_uv)
 
 
 def static_noise_2d(reference, static, settings: DICSettings, *, roi=None, mask=None,

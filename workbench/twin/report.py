@@ -253,7 +253,8 @@ def report_markdown(result, figures: dict) -> str:
                 continue
             change = "-" if r["label"].startswith("baseline") else (
                 f"{100 * r['change']:+.0f} %" if r.get("change") is not None and math.isfinite(r["change"]) else "-")
-            lines.append(f"| {r.get('rank') or ''} | {r['label']} | {_fmt(r['displacement_noise'])} | {change} | "
+            label = r["label"] + (f" ({r['note']})" if r.get("note") else "")
+            lines.append(f"| {r.get('rank') or ''} | {label} | {_fmt(r['displacement_noise'])} | {change} | "
                          f"{_fmt(r['pan_bound_figure'])} | {_fmt(r['strain_noise_ue'])} | "
                          f"{_fmt(r['l10_theory_px'])} | {_fmt(r['vsg_px'])} |")
         lines.append("")
@@ -292,12 +293,13 @@ def write_points_csv(result, path: Path) -> None:
     maps = result.maps
     names = ["U_um", "V_um", "W_um"] if result.inputs.stereo else ["u_px", "v_px"]
     header = ["x_px", "y_px"] + [f"predicted_sigma_{n}" for n in names] + [f"pan_bound_{n}" for n in names] + \
-        [f"measured_{n}" for n in names]
+        [f"measured_{n}" for n in names] + ["sssig_x_grey2", "sssig_y_grey2", "mig_grey_per_px"]
     n = len(maps["x_px"])
     empty = np.full((n, len(names)), np.nan)
     cols = [maps["x_px"], maps["y_px"], *maps["per_point"].T,
             *(maps["pan_bound"] if maps.get("pan_bound") is not None else empty).T,
-            *(maps["measured"] if maps.get("measured") is not None else empty).T]
+            *(maps["measured"] if maps.get("measured") is not None else empty).T,
+            *(maps["sssig"] if maps.get("sssig") is not None else np.full((n, 3), np.nan)).T]
     with atomic_writer(path, "w", newline="") as f:
         w = csv.writer(f)
         w.writerow(header)

@@ -180,11 +180,68 @@ def _speckle_figures(image, region, bit_depth, noise, settings: DICSettings, ste
             "_points": (x, y, sx, sy, mig)}
 
 
+def _points_sssig(image, x_px, y_px, subset: int, sigma: float) -> np.ndarray:
+    """SSSIG x, y (grey^2) and MIG (grey/px) of the user's left subsets at the points, (N, 3); NaN off the image."""
+    x = np.rint(np.asarray(x_px)).astype(np.int64)
+    y = np.rint(np.asarray(y_px)).astype(np.int64)
+    half = subset // 2
+    ok = (x >= half) & (y >= half) & (x < image.shape[1] - half) & (y < image.shape[0] - half)
+    out = np.full((x.size, 3), np.nan)
+    if ok.any():
+        out[ok] = np.column_stack(subset_sssig(image, x[ok], y[ok], subset, sigma))
+    return out
+
+
+def generated_pattern(shape, figures: dict, seed: int) -> np.ndarray:
+    """A Gaussian speckle of ``shape`` with the measured speckle size, mean and standard deviation (the truth side's
+    analytic pattern, point-sampled)."""
+    from scenes.synthetic_images import extent_for_shape, gaussian_speckle, radius_for_speckle_size
+
+    size = max(float(figures["speckle_size_px"]), 1.6)
+    pattern = gaussian_speckle(extent_for_shape(shape, 8.0), radius_for_speckle_size(size), 0.5, int(seed) + 17,
+                               mean_grey=float(figures["mean_grey"]), std_grey=float(figures["std_grey"]))
+    return pattern.render_reference(shape)
+
+
+def optics_rows(scene, lens, regions, noise_models, inputs, dic, window, roi, mask, seed, say) -> list[dict]:
+    """What-if rows of a thin-lens rig: one stop up and down, the focus 5 % of the distance nearer and farther."""
+    from .optics import changed_scene
+
+    distance = float(np.linalg.norm(scene.plane.point_mm))
+    shift = round(0.05 * distance, 1)
+    N0 = lens.f_number
+    changes = [(f"f-number {N0:g} -> {N0 * math.sqrt(2):.2g}", {"f_number": N0 * math.sqrt(2)}),
+               (f"f-number {N0:g} -> {N0 / math.sqrt(2):.2g}", {"f_number": N0 / math.sqrt(2)}),
+               (f"focus {shift:g} mm nearer", {"focus_shift_mm": -shift}),
+               (f"focus {shift:g} mm farther", {"focus_shift_mm": shift})]
+    rows = []
+    for label, change in changes:
+        say(f"what-if: {label}")
+        changed, info = changed_scene(scene, lens, regions, ceiling=2 ** inputs.bit_depth - 1, **change)
+        p = twin_static_noise(changed, noise_models, inputs.bit_depth, dic, roi=roi, mask=mask, strain_window=window,
+                              repeats=1, seed=seed)
+        r0 = p.runs[0]
+        images = draws(changed, noise_models, inputs.bit_depth, seed, 0)
+        b, _ = pan_bound_stereo(changed.rig, images["left"], images["right"], r0.x_px, r0.y_px, r0.right_xy_px,
+                                r0.X_ref_mm, dic.subset_size, noise_models)
+        left = info["left"]
+        note = (f"blur sigma {left['sigma_now_px']:.2f} -> {left['sigma_new_px']:.2f} px, light x "
+                f"{left['light_factor']:.2f}" + (" (sharper than your image: the twin cannot sharpen, only the light "
+                                                  "changes)" if left["sharper"] else ""))
+        rows.append({"label": label, "subset_px": dic.subset_size, "step_px": dic.step, "order": dic.order,
+                     "strain_window": window, "noise": r0.noise, "strain_ue": r0.strain_ue, "pan_bound": b,
+                     "displacement_noise": displacement_figure(r0.noise),
+                     "strain_noise_ue": strain_figure(r0.strain_ue), "pan_bound_figure": displacement_figure(b),
+                     "l10_theory_px": theory_l10(dic), "vsg_px": vsg_px(dic, window), "optics": {**change, **info},
+                     "note": note, "applies_to_real": False})
+    return rows
+
+
 def run_twin(left, right=None, static_left=None, static_right=None, *, calibration=None, roi=None, mask=None,
              auto_roi: bool = False, settings: TwinSettings | None = None, bit_depth: int | None = None,
              repeats: int = 2, seed: int = 0, whatif: bool = True, objective: str = "displacement",
              bias: bool = True, resolution: bool = True, apply_top_to_real: bool = True,
-             allow_coarse: bool = False, progress=None) -> TwinResult:
+             allow_coarse: bool = False, lens=None, texture: str = "photo", progress=None) -> TwinResult:
     """The digital twin of a rig from its calibration and images (module notes).
 
     Parameters
@@ -215,6 +272,12 @@ def run_twin(left, right=None, static_left=None, static_right=None, *, calibrati
         With a static pair, measure the real pair again with the top recommendation.
     allow_coarse : bool
         Go on when the speckle is too coarse or too fine for any subset (the advice is still reported).
+    texture : {"photo", "generated"}
+        The twin's pattern: your photograph itself (default), or a generated Gaussian speckle with its measured
+        speckle size, mean grey and contrast (for a pattern you have not applied yet, or to see what the
+        photograph's particulars are worth).
+    lens : :class:`workbench.twin.optics.Lens`, optional
+        The f-number and pixel pitch of a stereo rig's lenses: adds the f-number and focus rows to the what-if table.
     progress : callable, optional
         ``progress(message)`` for long steps.
 
@@ -228,6 +291,8 @@ def run_twin(left, right=None, static_left=None, static_right=None, *, calibrati
     settings = settings or TwinSettings()
     if repeats < 1:
         raise ValueError(f"repeats must be >= 1, got {repeats}")
+    if texture not in ("photo", "generated"):
+        raise ValueError(f"texture must be 'photo' or 'generated', got {texture!r}")
     times = {}
     start = time.perf_counter()
     inputs = load_inputs(left, right, static_left, static_right, calibration=calibration, roi=roi, mask=mask,
@@ -280,7 +345,7 @@ def run_twin(left, right=None, static_left=None, static_right=None, *, calibrati
         if side not in images:
             continue
         if inputs.has_static:
-            motion = measured.mean_motion_uv_px if side == "left" else (0.0, 0.0)
+            motion = measured.mean_motion_uv_px if side == "left" else measured.right_motion_uv_px
             noise_models[side] = noise_from_static_pair(images[side], images[f"static_{side}"], reg,
                                                         motion_xy_px=motion)
         else:
@@ -308,7 +373,12 @@ def run_twin(left, right=None, static_left=None, static_right=None, *, calibrati
 
     # 4. the twin
     t = time.perf_counter()
-    texture = images["left"] if not inputs.has_static else 0.5 * (images["left"] + images["static_left"])
+    pattern = images["left"] if not inputs.has_static else 0.5 * (images["left"] + images["static_left"])
+    if texture == "generated":
+        pattern = generated_pattern(pattern.shape, speckle["left"], seed)
+        notes.append(f"twin pattern: a generated Gaussian speckle with your measured statistics (speckle "
+                     f"{speckle['left']['speckle_size_px']:.2f} px, mean {speckle['left']['mean_grey']:.1f} grey, std "
+                     f"{speckle['left']['std_grey']:.1f} grey), not your photograph")
     scene = None
     mm_per_px = None
     if inputs.stereo:
@@ -323,7 +393,7 @@ def run_twin(left, right=None, static_left=None, static_right=None, *, calibrati
             point, normal = default_plane(trig)
             plane_note = "the plane where the optical axes meet"
         say("twin: rendering both cameras")
-        scene = build_stereo_scene(trig, texture, point, normal, right_target=images["right"],
+        scene = build_stereo_scene(trig, pattern, point, normal, right_target=images["right"],
                                    right_region=right_region)
         notes.append(f"twin scene: your left image painted on {plane_note} (distance {np.linalg.norm(point):.1f} mm),"
                      " point-sampled through both cameras; the right view scaled to your right image's mean and "
@@ -331,7 +401,7 @@ def run_twin(left, right=None, static_left=None, static_right=None, *, calibrati
         Z = real_shape.X_mm[real_shape.valid][:, 2]
         mm_per_px = float(np.median(Z) / rig.left.fx)
     else:
-        scene = TwinScene(None, {"left": texture}, {"left": np.ones(texture.shape, bool)}, {}, None)
+        scene = TwinScene(None, {"left": pattern}, {"left": np.ones(pattern.shape, bool)}, {}, None)
     times["twin_render"] = time.perf_counter() - t
 
     t = time.perf_counter()
@@ -355,7 +425,7 @@ def run_twin(left, right=None, static_left=None, static_right=None, *, calibrati
     t = time.perf_counter()
     if bias:
         say("twin: interpolation bias on your pattern")
-        b = interpolation_bias_px(texture, region, dic)
+        b = interpolation_bias_px(pattern, region, dic)
         prediction["bias"] = b
         if mm_per_px:
             prediction["bias"]["max_abs_um"] = b["max_abs_px"] * mm_per_px * 1e3
@@ -363,7 +433,7 @@ def run_twin(left, right=None, static_left=None, static_right=None, *, calibrati
     t = time.perf_counter()
     if resolution:
         say("twin: spatial resolution (Star field on your pattern)")
-        r = spatial_resolution(texture, region, dic, noise_models["left"], inputs.bit_depth, seed=seed)
+        r = spatial_resolution(pattern, region, dic, noise_models["left"], inputs.bit_depth, seed=seed)
         prediction["resolution"] = r
         if mm_per_px and np.isfinite(r.get("l10_px", math.nan)):
             r["l10_mm"] = r["l10_px"] * mm_per_px
@@ -409,12 +479,22 @@ def run_twin(left, right=None, static_left=None, static_right=None, *, calibrati
                          "strain_noise_ue": strain_figure(run_strain),
                          "pan_bound_figure": displacement_figure(b), "l10_theory_px": theory_l10(s),
                          "vsg_px": vsg_px(s, window)})
+        if lens is not None and inputs.stereo:
+            rows += optics_rows(scene, lens, {"left": region, "right": right_region}, noise_models, inputs, dic,
+                                settings.strain_window, roi_rect, mask_arr, seed, say)
         rows = rank(rows, objective)
-        for lens_row in ("f-number", "focus distance"):
-            rows.append({"label": f"{lens_row}: not applicable", "rank": None,
-                         "reason": "the calibration describes a pinhole camera (no aperture or focus); a thin-lens "
-                                   "rig's lens is needed for this row"})
+        if lens is None or not inputs.stereo:
+            reason = ("a one-camera twin without a calibration has no geometry for the lens" if not inputs.stereo else
+                      "a calibration describes a pinhole camera: give the lens's f-number and the pixel pitch "
+                      "(--f-number, --pixel-pitch-um) for these rows")
+            for lens_row in ("f-number", "focus distance"):
+                rows.append({"label": f"{lens_row}: not applicable", "rank": None, "reason": reason})
         top = next((r for r in rows if r.get("rank") == 1), None)
+        applicable = next((r for r in rows if r.get("rank") and r.get("applies_to_real", True)), None)
+        if top is not None and top is not applicable:
+            notes.append(f"the top recommendation ({top['label']}) changes the optics, which a recorded pair cannot "
+                         "show; the best settings change was applied to your pair instead")
+        top = applicable
         if top is not None and measured is not None and apply_top_to_real:
             say(f"instrument: your static pair with the top recommendation ({top['label']})")
             s = DICSettings(subset_size=top["subset_px"], step=top["step_px"], order=top["order"],
@@ -443,6 +523,8 @@ def run_twin(left, right=None, static_left=None, static_right=None, *, calibrati
     for side in speckle:
         speckle[side].pop("_points", None)
     maps = {"x_px": base_run.x_px, "y_px": base_run.y_px, "per_point": pooled.per_point, "pan_bound": bound_map,
-            "measured": None if measured is None else measured.values}
+            "measured": None if measured is None else measured.values,
+            "sssig": _points_sssig(images["left"], base_run.x_px, base_run.y_px, dic.subset_size,
+                                   noise_models["left"].sigma_grey)}
     return TwinResult(inputs, settings, speckle, noise_models, prediction, None if measured is None else
                       measured.summary(), comparison, rows, whatif_real, maps, scene, times, notes, mask_arr)
