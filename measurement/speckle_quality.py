@@ -30,7 +30,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy import ndimage
 
-from .dic.roi import estimate_noise_sigma
+from .dic.roi import estimate_noise_sigma, grey_float_image
 
 #: Speckles smaller than this (autocorrelation FWHM, px) are under-sampled: the spectrum beyond Nyquist aliases
 #: and every interpolant errs (DIC Challenge 2.0 and Reu's guide recommend 3-5 px speckles).
@@ -145,7 +145,7 @@ def grey_statistics(image: np.ndarray, mask: np.ndarray | None = None, bit_depth
     -------
     GreyStatistics
     """
-    values = _image(image)
+    values = grey_float_image(image)
     mask = region_mask(values.shape, mask)
     v = values[mask & np.isfinite(values)]
     if v.size == 0:
@@ -183,7 +183,7 @@ def speckle_size_px(image: np.ndarray, mask: np.ndarray | None = None, tile_px: 
         A region under 16 x 16 px, a flat region, or speckles so large that the autocovariance never falls to
         1/2 within half a tile.
     """
-    values = _image(image)
+    values = grey_float_image(image)
     mask = region_mask(values.shape, mask) & np.isfinite(values)
     rows, cols = np.nonzero(mask)
     if rows.size == 0:
@@ -258,7 +258,7 @@ def subset_sssig(image: np.ndarray, x_px, y_px, subset_px: int, noise_sigma_grey
     mig : ndarray, shape (N,), grey/px
         Mean gradient magnitude over the subset (Pan et al. 2010's MIG, with these gradients).
     """
-    values = _image(image)
+    values = grey_float_image(image)
     subset_px = _odd(subset_px, "subset_px")
     x = np.asarray(x_px, dtype=np.int64).ravel()
     y = np.asarray(y_px, dtype=np.int64).ravel()
@@ -359,7 +359,7 @@ def noise_from_static_pair(first: np.ndarray, second: np.ndarray, mask: np.ndarr
     NoiseModel
         ``source = "static pair"``.
     """
-    a, b = _image(first), _image(second)
+    a, b = grey_float_image(first), grey_float_image(second)
     if a.shape != b.shape:
         raise ValueError(f"the static pair's images differ in size: {a.shape[::-1]} and {b.shape[::-1]} px")
     mask = region_mask(a.shape, mask) & np.isfinite(a) & np.isfinite(b)
@@ -418,7 +418,7 @@ def noise_from_image(image: np.ndarray) -> NoiseModel:
     """An estimate of the noise from one image (Immerkaer's residual on its least-textured blocks; see
     :func:`measurement.dic.roi.estimate_noise_sigma`): constant over grey levels; on a frame filled with fine
     speckle it reads high (texture leaks in), so a static pair is better."""
-    sigma = estimate_noise_sigma(_image(image))
+    sigma = estimate_noise_sigma(grey_float_image(image))
     return NoiseModel(sigma, sigma, None, "single image")
 
 
@@ -452,7 +452,7 @@ def subset_advice(image: np.ndarray, x_px, y_px, noise_sigma_grey: float, speckl
     Speckles under :data:`MIN_SPECKLE_PX` are "too fine" whatever the subset (aliasing sets a bias no subset
     removes); a need above ``max_subset_px`` (or above the image) is "too coarse", with the subset named.
     """
-    values = _image(image)
+    values = grey_float_image(image)
     rows, cols = values.shape
     limit = min(int(max_subset_px), 2 * ((min(rows, cols) - 1) // 2) + 1)
     by_speckle = int(2 * math.ceil((SPECKLES_PER_SUBSET * speckle_px - 1) / 2) + 1)
@@ -489,15 +489,6 @@ def subset_advice(image: np.ndarray, x_px, y_px, noise_sigma_grey: float, speckl
     return SubsetAdvice(needed, needed, "ok",
                         f"subsets of {needed} px or more reach {target_px:g} px (Pan bound, median) with speckles "
                         f"of {speckle_px:.1f} px")
-
-
-def _image(image) -> np.ndarray:
-    values = np.asarray(image)
-    if values.ndim != 2:
-        raise ValueError(f"image must be 2-D grey (rows, cols), got shape {values.shape}")
-    if not np.issubdtype(values.dtype, np.number) or np.iscomplexobj(values):
-        raise ValueError(f"image must be real-valued, got dtype {values.dtype}")
-    return values.astype(np.float64)
 
 
 def _odd(value, name: str) -> int:

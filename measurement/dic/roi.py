@@ -110,7 +110,7 @@ def estimate_noise_sigma(image: np.ndarray, *, block_px: int = 16, quantile: flo
     ValueError
         Bad arguments, or fewer than 8 usable blocks (image too small, or all NaN/clipped).
     """
-    values = _check_image(image)
+    values = grey_float_image(image)
     if isinstance(block_px, bool) or int(block_px) != block_px or int(block_px) < 4:
         raise ValueError(f"block_px must be an integer >= 4, got {block_px!r}")
     block_px = int(block_px)
@@ -205,7 +205,7 @@ def texture_mask(image: np.ndarray, subset_size: int, *, noise_sigma_grey: float
     ndarray of bool, shape (H, W)
         True where a subset centred on the pixel may be measured.
     """
-    values = _check_image(image)
+    values = grey_float_image(image)
     subset_size = check_subset_size(subset_size)
     sigma = _noise_for(image, values, noise_sigma_grey)
     if not (np.isfinite(target_precision_px) and target_precision_px > 0):
@@ -281,7 +281,9 @@ def _finite_unclipped(values: np.ndarray) -> np.ndarray:
     return usable
 
 
-def _check_image(image) -> np.ndarray:
+def grey_float_image(image) -> np.ndarray:
+    """A 2-D real image as float64 (NaN kept); refused with a ValueError if not 2-D, not real, or without a finite
+    pixel."""
     values = np.asarray(image)
     if values.ndim != 2:
         raise ValueError(f"image must be 2-D grey (rows, cols), got shape {values.shape}")
@@ -628,7 +630,7 @@ def texture_grid(reference: np.ndarray, grid: PoiGrid, auto_roi: AutoRoi | None 
         Noise standard deviation used, grey levels.
     """
     auto_roi = auto_roi or AutoRoi()
-    values = _check_image(reference)
+    values = grey_float_image(reference)
     sigma = _noise_for(reference, values, auto_roi.noise_sigma_grey)
     mask = texture_mask(values, grid.subset_size, noise_sigma_grey=sigma,
                         target_precision_px=auto_roi.target_precision_px,
@@ -691,7 +693,7 @@ def expected_zncc_deficit(reference: np.ndarray, x: np.ndarray, y: np.ndarray, s
     ndarray of float64, shape (N,)
         Expected deficit, 1 (inf for a flat subset).
     """
-    values = _check_image(reference)
+    values = grey_float_image(reference)
     subset_size = check_subset_size(subset_size)
     x, y = np.asarray(x, dtype=np.int64), np.asarray(y, dtype=np.int64)
     finite = np.isfinite(values)
