@@ -118,6 +118,8 @@ def _grid(x: np.ndarray, y: np.ndarray, values: np.ndarray) -> np.ndarray:
 
 
 def strain_noise(X_ref: np.ndarray, X_def: np.ndarray, x, y, window: int | None) -> dict:
+    """1 sigma of E11, E22, E12 (µε) of a static pair's points on their grid (``surface_strain`` with ``window``
+    grid points, or triangles for None); empty when the grid is smaller than the window."""
     ref, de = _grid(x, y, X_ref), _grid(x, y, X_def)
     if min(ref.shape[:2]) < 3 or (window is not None and min(ref.shape[:2]) < window):
         return {}

@@ -260,6 +260,13 @@ def report_markdown(result, figures: dict) -> str:
         lines.append("")
         if figures.get("whatif"):
             lines += [f"![what-if]({figures['whatif']})", ""]
+    ranked = [r for r in result.whatif if r.get("rank")]
+    if ranked:
+        same = next((r for r in ranked if r.get("keeps_resolution")), None)
+        lines.append("Best change that keeps your spatial resolution (l10 and strain gauge within 10 %): " +
+                     (f"**{same['label']}** ({100 * same['change']:+.0f} %)." if same else
+                      "none; every improvement above costs resolution (see its l10 and VSG)."))
+        lines.append("")
     if result.whatif_real:
         w = result.whatif_real
         lines += [f"**Top recommendation applied to your static pair** ({w['label']}): measured "

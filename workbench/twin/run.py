@@ -11,8 +11,8 @@
 4. The twin (:mod:`.scene`): the pattern on the plane, rendered through the rig; its static pairs measured by the
    instrument (:mod:`.predict`): the noise floor of U, V, W (µm) and strain (µε) per point and pooled, the
    Pan-type bound, the interpolation bias on the pattern, l10 on the pattern.
-5. The what-if table (:mod:`.whatif`); with a static pair, the top recommendation is also applied to the real
-   pair and measured.
+5. The what-if table (:mod:`.whatif`; with the lens stated, f-number and focus rows from :mod:`.optics`); with a
+   static pair, the top settings recommendation is also applied to the real pair and measured.
 """
 from __future__ import annotations
 

@@ -11,8 +11,9 @@ Rows (each against the user's baseline, on the same noise draws so that the diff
 * ranked by the predicted change of the objective (displacement noise by default; ``strain`` ranks by the
   strain noise).
 
-A thin-lens rig's f-number and focus would add rows; a calibration file describes a pinhole camera, so those
-rows are listed as not applicable, with the reason.
+A thin-lens rig's f-number and focus add rows (:mod:`workbench.twin.optics`, built by
+:func:`workbench.twin.run.optics_rows`) when the user states the f-number and pixel pitch; a calibration file
+describes a pinhole camera, so without them those rows are listed as not applicable, with the reason.
 """
 from __future__ import annotations
 
@@ -85,8 +86,9 @@ def strain_only(run, window: int | None) -> dict:
 
 def rank(rows: list[dict], objective: str = "displacement") -> list[dict]:
     """Rows sorted by the predicted change of the objective (most negative first), baseline kept first; each row
-    gets ``change`` (relative to the baseline) and ``rank`` (1 = the top recommendation; None for the baseline
-    and for rows that do not improve)."""
+    gets ``change`` (relative to the baseline), ``rank`` (1 = the top recommendation; None for the baseline and for
+    rows that do not improve by 2 %) and ``keeps_resolution`` (its l10 and virtual strain gauge within 10 % of the
+    baseline's: a change that buys noise with resolution does not)."""
     if objective not in OBJECTIVES:
         raise ValueError(f"objective must be one of {', '.join(OBJECTIVES)}, got {objective!r}")
     key = "displacement_noise" if objective == "displacement" else "strain_noise_ue"
@@ -94,6 +96,11 @@ def rank(rows: list[dict], objective: str = "displacement") -> list[dict]:
     for row in rows:
         row["objective"] = objective
         row["change"] = (row[key] / base - 1.0) if (base and np.isfinite(base) and np.isfinite(row[key])) else math.nan
+    base_l10, base_vsg = rows[0].get("l10_theory_px", math.nan), rows[0].get("vsg_px", math.nan)
+    for row in rows:
+        # the same spatial resolution: l10 of the subset/order and the virtual strain gauge within 10 % of yours
+        row["keeps_resolution"] = bool(row.get("l10_theory_px", math.nan) <= 1.1 * base_l10 and
+                                       not row.get("vsg_px", math.nan) > 1.1 * base_vsg)
     rest = sorted(rows[1:], key=lambda r: (math.inf if not np.isfinite(r["change"]) else r["change"]))
     k = 1
     for row in rest:
