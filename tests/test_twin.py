@@ -184,6 +184,10 @@ def test_wrong_bit_depth_claims_are_refused(tmp_path):
     with pytest.raises(ValueError, match=r"twelve.png holds 12-bit data in a 16-bit container .* but --bit-depth "
                                          r"claims 8-bit data: give --bit-depth 12"):
         run_twin(twelve, bit_depth=8)
+    eight = _write(tmp_path / "eight.png", image)
+    with pytest.raises(ValueError, match=r"twelve.png holds 12-bit data .* but the left reference .*eight.png holds "
+                                         r"8-bit data .*: all images of a twin come from the same cameras"):
+        run_twin(eight, static_left=twelve)
     colour = tmp_path / "colour.png"
     cv2.imwrite(str(colour), np.repeat(np.asarray(image, np.uint8)[..., None], 3, axis=2))
     with pytest.raises(ValueError, match=r"colour.png: a colour image .* cannot hold 12-bit data"):

@@ -159,8 +159,12 @@ def load_inputs(left, right=None, static_left=None, static_right=None, *, calibr
     notes = []
     depth = check_bit_depth(infos["left"], bit_depth)
     for k, info in infos.items():
-        check_bit_depth(info, bit_depth if bit_depth is not None else depth,
-                        "--bit-depth" if bit_depth is not None else f"the left reference's {depth}-bit depth;")
+        if bit_depth is not None:
+            check_bit_depth(info, bit_depth)
+        elif check_bit_depth(info, None) > depth:
+            raise ValueError(f"{info.path} holds {info.describe()} but the left reference {infos['left'].path} holds "
+                             f"{infos['left'].describe()}: all images of a twin come from the same cameras at one "
+                             "bit depth")
         if info.colour:
             notes.append(f"{info.path.name} is a colour image, converted to grey (0.299 R + 0.587 G + 0.114 B): "
                          "the noise model is that of the grey conversion")
