@@ -22,6 +22,8 @@ import numpy as np
 HERE = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(HERE))
 
+from labio.atomic import atomic_write_text  # noqa: E402
+
 #: (rig, read noise grey, electrons per grey, subset, step)
 CASES = [("paper", 1.0, 50.0, 33, 8), ("paper", 3.0, 10.0, 33, 8), ("scheimpflug", 1.0, 50.0, 33, 8),
          ("scheimpflug", 3.0, 10.0, 21, 6)]
@@ -73,7 +75,7 @@ def main(argv=None) -> int:
         records.append(rec)
         print(rig, read, gain, {k: round(v["ratio"], 3) for k, v in rec["comparison"].items()}, flush=True)
     args.out.mkdir(parents=True, exist_ok=True)
-    (args.out / "summary.json").write_text(json.dumps(records, indent=1))
+    atomic_write_text(args.out / "summary.json", json.dumps(records, indent=1))
     lines = ["# The digital twin on rendered rigs (sensor known)", "",
              f"Flat speckled plate rendered by the specimen renderer at scale {args.scale}, state 0 and its static "
              "repeat; `run_twin` on the four images and the rig's calibration file (automatic ROI, 2 twin repeats). "
@@ -91,7 +93,7 @@ def main(argv=None) -> int:
     worst = max(abs(r["comparison"][k]["ratio"] - 1) for r in records for k in ("U_um", "V_um", "W_um"))
     lines += ["", f"Worst displacement component: {100 * worst:.1f} % from the measured "
                   f"({'within' if worst <= GOAL else 'outside'} the goal).", ""]
-    (args.out / "report.md").write_text("\n".join(lines))
+    atomic_write_text(args.out / "report.md", "\n".join(lines))
     print("\n".join(lines))
     return 0
 

@@ -21,6 +21,8 @@ import numpy as np
 HERE = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(HERE))
 
+from labio.atomic import atomic_write_text  # noqa: E402
+
 
 def make_user_files(work: Path, scale: float) -> dict:
     import cv2
@@ -84,7 +86,7 @@ def main(argv=None) -> int:
                "points": doc["prediction"]["points"], "stages_s": doc["timings_s"],
                "whatif_rows": sum(1 for r in doc["whatif"] if r.get("displacement_noise") is not None),
                "comparison": {k: v["ratio"] for k, v in (doc["comparison"] or {}).items()}}
-    (args.out / "summary.json").write_text(json.dumps(summary, indent=1))
+    atomic_write_text(args.out / "summary.json", json.dumps(summary, indent=1))
     lines = ["# Twin speed: a 5 MP stereo rig", "",
              f"`workbench twin` on two {files['shape'][1]} x {files['shape'][0]} px cameras ({megapixels:.2f} MP "
              "each), "
@@ -96,7 +98,7 @@ def main(argv=None) -> int:
     lines += ["", "Predicted / measured on the pair: " + ", ".join(f"{k} {v:.3f}" for k, v in
                                                                    summary["comparison"].items()), "",
               "Reproduce: `.venv/bin/python benchmarks/twin_speed.py` (nothing else running).", ""]
-    (args.out / "report.md").write_text("\n".join(lines))
+    atomic_write_text(args.out / "report.md", "\n".join(lines))
     print("\n".join(lines))
     return code
 

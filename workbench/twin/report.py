@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from labio.atomic import atomic_writer
+from labio.atomic import atomic_write_text, atomic_writer
 
 from ..reporting.html_report import write_html_report
 
@@ -320,10 +320,8 @@ def write_twin_report(result, out_dir) -> Path:
     out.mkdir(parents=True, exist_ok=True)
     figures = {"speckle": _speckle_figure(result, out), "maps": _maps_figure(result, out),
                "whatif": _whatif_figure(result, out), "star": _star_figure(result, out)}
-    with atomic_writer(out / "twin.json", "w") as f:
-        json.dump(result.summary(), f, indent=1)
+    atomic_write_text(out / "twin.json", json.dumps(result.summary(), indent=1))
     write_points_csv(result, out / "twin_points.csv")
     text = report_markdown(result, figures)
-    with atomic_writer(out / "report.md", "w") as f:
-        f.write(text)
+    atomic_write_text(out / "report.md", text)
     return write_html_report(out / "report.html", "Digital twin of your rig", text, out)

@@ -149,19 +149,16 @@ def right_region_of(shape, x_px, y_px, subset: int, step: int) -> np.ndarray:
     return ndimage.binary_dilation(region, np.ones((2 * reach + 1, 2 * reach + 1), dtype=bool))
 
 
-def _speckle_figures(image, region, bit_depth, noise, settings: DICSettings, step_points=None) -> dict:
+def _speckle_figures(image, region, bit_depth, noise, settings: DICSettings) -> dict:
     stats = grey_statistics(image, region, bit_depth)
     size = speckle_size_px(image, region)
     half = settings.subset_size // 2
     rows, cols = np.nonzero(region)
-    if step_points is None:
-        ys = np.arange(rows.min() + half, rows.max() - half + 1, settings.step)
-        xs = np.arange(cols.min() + half, cols.max() - half + 1, settings.step)
-        X, Y = np.meshgrid(xs, ys)
-        keep = region[Y, X]
-        x, y = X[keep], Y[keep]
-    else:
-        x, y = step_points
+    ys = np.arange(rows.min() + half, rows.max() - half + 1, settings.step)
+    xs = np.arange(cols.min() + half, cols.max() - half + 1, settings.step)
+    X, Y = np.meshgrid(xs, ys)
+    keep = region[Y, X]
+    x, y = X[keep], Y[keep]
     x = np.asarray(x, dtype=np.int64)
     y = np.asarray(y, dtype=np.int64)
     inside = (x >= half) & (y >= half) & (x < image.shape[1] - half) & (y < image.shape[0] - half)
@@ -309,9 +306,8 @@ def run_twin(left, right=None, static_left=None, static_right=None, *, calibrati
     measured = None
     real_shape = None
     roi_rect, mask_arr = inputs.roi, inputs.mask
-    noise0 = noise_from_image(images["left"])
     if auto_roi:
-        auto = texture_mask(images["left"], dic.subset_size, noise_sigma_grey=noise0.sigma_grey)
+        auto = texture_mask(images["left"], dic.subset_size)      # noise estimated from the image, as `stereo` does
         mask_arr = auto if mask_arr is None else (mask_arr & auto)
         region = region & auto
         if not region.any():
@@ -323,13 +319,12 @@ def run_twin(left, right=None, static_left=None, static_right=None, *, calibrati
     if inputs.has_static:
         say("instrument: your static pair")
         if inputs.stereo:
-            measured_run = static_noise_stereo(rig, images["left"], images["right"], images["static_left"],
-                                               images["static_right"], dic, roi=roi_rect, mask=mask_arr,
-                                               strain_window=settings.strain_window, shape=real_shape)
+            measured = static_noise_stereo(rig, images["left"], images["right"], images["static_left"],
+                                           images["static_right"], dic, roi=roi_rect, mask=mask_arr,
+                                           strain_window=settings.strain_window, shape=real_shape)
         else:
-            measured_run = static_noise_2d(images["left"], images["static_left"], dic, roi=roi_rect, mask=mask_arr,
-                                           strain_window=settings.strain_window)
-        measured = measured_run
+            measured = static_noise_2d(images["left"], images["static_left"], dic, roi=roi_rect, mask=mask_arr,
+                                       strain_window=settings.strain_window)
     times["real_pair"] = time.perf_counter() - t
 
     # 3. speckle and noise
