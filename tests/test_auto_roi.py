@@ -360,9 +360,9 @@ def test_workbench_stereo_auto_roi(tmp_path, capsys):
     assert low > 0 and bad > 0
     assert (f"reference auto ROI: {low + bad} of {len(names)} points flagged: {low} low texture, {bad} inconsistent"
             in printed), printed
-    state = [r["status_name"] for r in csv.DictReader((out / "state_000.csv").open())]
+    state = [r["status_name"] for r in csv.DictReader((out / "state_001.csv").open())]
     assert state.count("low_texture") == low and state.count("inconsistent") >= 1
-    assert "state 0 auto ROI:" in printed
+    assert "state 1 auto ROI:" in printed
 
 
 def test_the_edges_of_a_region_with_a_steep_gradient_are_not_peeled():

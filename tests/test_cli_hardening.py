@@ -90,13 +90,13 @@ def test_stereo_writes_residual_statistics_per_state_and_a_manifest(stereo, tmp_
     assert "reference: 180/180 points triangulated, median residual" in printed and "95th percentile" in printed
     with open(out / "summary.csv", newline="") as handle:
         rows = list(csv.DictReader(handle))
-    assert [r["state"] for r in rows] == ["reference", "state_000"]
+    assert [r["state"] for r in rows] == ["reference", "state_001"]
     for r in rows:
         assert r["result"] == "measured" and int(r["measured"]) == int(r["points"]) == 180
         assert 0 < float(r["median_residual_px"]) <= float(r["p95_residual_px"]) < 0.05
     assert abs(float(rows[1]["mean_D_mm"]) - 1.0) < 0.005
     manifest = json.loads((out / MANIFEST_NAME).read_text())
-    assert sorted(manifest["files"]) == ["reference.csv", "reference.vtk", "state_000.csv", "state_000.vtk",
+    assert sorted(manifest["files"]) == ["reference.csv", "reference.vtk", "state_001.csv", "state_001.vtk",
                                          "summary.csv"]
     assert not (out / PENDING_NAME).exists()
     # a second run into the same folder would mix two result sets: refused, unless --overwrite
@@ -146,12 +146,12 @@ def test_every_state_unmatched_exits_non_zero(stereo, tmp_path, capsys):
     out = tmp_path / "out"
     assert main(_stereo_args(stereo, out, left="right_def.png", right="left_def.png")) == 1
     err = capsys.readouterr().err
-    assert "state 0 skipped" in err and "swapped" in err and "1 of 1 states could not be measured" in err
+    assert "state 1 skipped" in err and "swapped" in err and "1 of 1 states could not be measured" in err
     with open(out / "summary.csv", newline="") as handle:
         rows = list(csv.DictReader(handle))
     assert rows[1]["result"] == "skipped" and float(rows[1]["median_residual_px"]) > 0.5
-    assert not (out / "state_000.csv").exists()
-    assert "state_000.csv" not in json.loads((out / MANIFEST_NAME).read_text())["files"]
+    assert not (out / "state_001.csv").exists()
+    assert "state_001.csv" not in json.loads((out / MANIFEST_NAME).read_text())["files"]
 
 
 def test_zero_points_triangulated_is_an_error(stereo, tmp_path, capsys):
@@ -178,7 +178,7 @@ def test_no_point_is_never_accepted_even_without_thresholds():
 @pytest.mark.parametrize("defect, message", [("size", "is 614 x 510 px but the calibration is for 614 x 514 px"),
                                              ("unreadable", "cannot read image")])
 def test_deformed_images_are_checked_before_anything_is_written(stereo, tmp_path, capsys, defect, message):
-    """A bad second state used to be found after reference.csv/.vtk and state_000 were written."""
+    """A bad second state used to be found after reference.csv/.vtk and state_001 were written."""
     folder = tmp_path / "in"
     folder.mkdir()
     for name in ("left_ref.png", "right_ref.png", "left_def.png", "right_def.png", "rig.yaml"):

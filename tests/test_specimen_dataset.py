@@ -133,8 +133,10 @@ def test_speckle_finer_than_two_pixels_is_warned(tmp_path):
 
 def test_specimen_through_export_stereo_and_score_clis(tmp_path, capsys):
     """The README's path for a specimen of one's own: render, export (calibration + images), `workbench stereo`, then
-    `workbench score` of its state CSVs against the FE truth: every state scored, the 3-D error of the plate's
-    linear field (0.1 % strain, 30-60 um of motion) within 10 um RMS at scale 0.2 (the instrument, the true rig)."""
+    `workbench score` of all its state CSVs at once, no --state: each is scored against the state of the images it
+    measured (issue 35: state_000.csv was taken for the reference and every other file scored against the next load
+    step). Every state within 10 um RMS at scale 0.2 (the plate's linear field, 30-60 um of motion that grows with
+    the state: a file scored against another state's truth is off by 25 um or more)."""
     import json as _json
 
     from workbench.cli import main
@@ -151,15 +153,32 @@ def test_specimen_through_export_stereo_and_score_clis(tmp_path, capsys):
                  "--right-ref", str(ex / right[0]), "--left", str(ex / "left_0[1-3]*"),
                  "--right", str(ex / "right_0[1-3]*"), "--subset", "33", "--step", "12", "--auto-roi",
                  "--out", str(st)]) == 0
-    results = sorted(str(p) for p in st.glob("state_*.csv"))
-    assert len(results) == 3
+    results = sorted(st.glob("state_*.csv"))
+    # one numbering of states everywhere: the reference is state 0, the first deformed pair state 1
+    assert [p.name for p in results] == ["state_001.csv", "state_002.csv", "state_003.csv"]
     capsys.readouterr()
-    # workbench stereo numbers the deformed images from 0: its state_000.csv is the dataset's state 1
-    assert main(["score", str(data), results[0], "--state", "1", "--out", str(sc)]) == 0
+    assert main(["score", str(data), *map(str, results), "--out", str(sc)]) == 0
     m = _json.loads((sc / "metrics.json").read_text())
-    state = m["states"][0]
-    assert state["valid_points"] > 100
-    assert state["rms_um"] < 10.0
+    assert [s["state"] for s in m["states"]] == [1, 2, 3]
+    for state in m["states"]:
+        assert state["valid_points"] > 100
+        assert state["rms_um"] < 10.0, state
+
+    # a wrong --state beside the images' own state is refused naming both
+    assert main(["score", str(data), str(results[0]), "--state", "2", "--out", str(tmp_path / "sc2")]) == 2
+    err = capsys.readouterr().err
+    assert "--state 2" in err and "images of state 1" in err and "left_01.png" in err
+
+    # the same result against a dataset of other images (another speckle seed): refused, both named
+    (tmp_path / "o").mkdir()
+    other = _scenario(tmp_path / "o", scale=0.2)
+    other.write_text(other.read_text().replace("seed = 3", "seed = 4"))
+    assert main(["render", "specimen", str(other), "--out", str(tmp_path / "data_other")]) == 0
+    assert main(["score", str(tmp_path / "data_other"), str(results[1]), "--out", str(tmp_path / "sc3")]) == 2
+    err = capsys.readouterr().err
+    assert "reference images (left_00.png + right_00.png) are not the reference of dataset" in err
+    assert str(tmp_path / "data_other") in err and str(st / "manifest.json") in err
+    assert not (tmp_path / "sc3" / "metrics.json").exists()
 
 
 def test_render_through_ones_own_calibration_file(tmp_path):

@@ -118,11 +118,11 @@ def test_workbench_stereo_cli(renders, tmp_path, capsys):
             "--right", str(tmp_path / "right_def.png"), "--roi", f"{x0},{y0},{x1},{y1}", "--subset", "33",
             "--step", "20", "--out", str(tmp_path / "out")]
     assert main(args) == 0
-    rows = list(csv.DictReader((tmp_path / "out" / "state_000.csv").open()))
+    rows = list(csv.DictReader((tmp_path / "out" / "state_001.csv").open()))
     assert rows and set(rows[0]) >= {"x", "y", "X", "Y", "Z", "U", "V", "W", "zncc", "residual", "status"}
     V = np.array([float(r["V"]) for r in rows if r["status_name"] == "converged"])
     assert V.size > 0.9 * len(rows) and abs(V.mean() + 1.0) < 0.01
-    vtk = (tmp_path / "out" / "state_000.vtk").read_text()
+    vtk = (tmp_path / "out" / "state_001.vtk").read_text()
     assert vtk.startswith("# vtk DataFile") and "VECTORS displacement_mm" in vtk
     # missing calibration file: one clear line, exit code 2
     assert main(args[:2] + [str(tmp_path / "none.json")] + args[3:]) == 2

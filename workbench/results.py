@@ -21,6 +21,7 @@ displacements in mm in the tool's frame (``frame`` says which; scoring aligns it
 from __future__ import annotations
 
 import csv
+import hashlib
 import re
 from dataclasses import dataclass
 from pathlib import Path
@@ -274,3 +275,67 @@ def state_of(path: Path) -> int | None:
     """The state number a file name ends with (``DICe_solution_03.txt`` -> 3), or None."""
     m = re.search(r"(\d+)\D*$", path.stem)
     return int(m.group(1)) if m else None
+
+
+def pixels_sha256(image: np.ndarray) -> str:
+    """A hash of an image's grey levels (shape and values, whatever the file's dtype or format).
+
+    Two files hold the same image when their hashes agree: a PNG and the TIFF an export re-encoded it to do, so a
+    result can be matched to a dataset's state by what it measured, not by where the files lie.
+    """
+    image = np.ascontiguousarray(np.asarray(image, dtype=np.float64))
+    digest = hashlib.sha256(repr(image.shape).encode())
+    digest.update(image.tobytes())
+    return digest.hexdigest()
+
+
+@dataclass(frozen=True)
+class MeasuredImages:
+    """The images a result file says it measured: its reference pair and the pair of its state.
+
+    ``reference``/``state``: ``{"left": path, "right": path}`` as the tool recorded them; ``*_sha256``: the
+    same keys, :func:`pixels_sha256` of each image; ``record``: the file that says so.
+    """
+
+    reference: dict
+    state: dict
+    reference_sha256: dict
+    state_sha256: dict
+    record: Path
+
+
+def measured_images(path: str | Path) -> MeasuredImages | None:
+    """What images ``path`` measured, from the ``workbench stereo`` manifest beside it; None where no record says.
+
+    ``workbench stereo`` lists, in its folder's ``manifest.json``, every result file with the left and right images
+    it measured and their pixel hashes (the reference's too), so a state is identified by its images whatever the
+    file is called. A stereo manifest that predates those records is refused: its file names counted the states
+    from the first deformed image (``state_000.csv`` was state 1), so its names cannot be trusted either.
+    """
+    from workbench.manifest import DatasetFolderError, read_manifest
+
+    path = Path(path)
+    try:
+        manifest = read_manifest(path.parent)
+    except DatasetFolderError:
+        return None
+    if manifest is None or manifest["kind"] != "stereo" or path.name not in manifest["files"]:
+        return None
+    record = path.parent / "manifest.json"
+    entries = manifest.get("settings", {}).get("images")
+    if entries is None:
+        raise ResultFormatError(f"{path}: its {record} is from a `workbench stereo` older than the image records (its "
+                                "state_NNN files were numbered from the first deformed image); give --state, or "
+                                "run `workbench stereo` again")
+    try:
+        by_file = {e["file"]: e for e in entries}
+        reference = next(e for e in entries if e["state"] == 0)
+        entry = by_file.get(path.name)
+        if entry is None:
+            return None                  # a file of the folder that is no state result (the VTK's CSV twin, ...)
+        return MeasuredImages({s: reference[s] for s in ("left", "right")}, {s: entry[s] for s in ("left", "right")},
+                              {s: reference[f"{s}_pixels_sha256"] for s in ("left", "right")},
+                              {s: entry[f"{s}_pixels_sha256"] for s in ("left", "right")}, record)
+    except (KeyError, TypeError, StopIteration) as err:
+        raise ResultFormatError(f"{record}: 'settings.images' is malformed ({type(err).__name__}: {err}); run "
+                                "`workbench stereo` again") from None

@@ -13,8 +13,9 @@ def add_parser(sub) -> None:
 
     sc = sub.add_parser("score", help="score another tool's result files (or an engine run) against the truth")
     sc.add_argument("dataset", type=Path, help="the dataset folder or scenario file the results were computed on")
-    sc.add_argument("results", type=Path, nargs="*", help="result files, one per deformed state (the state is the "
-                                                          "number the file name ends with, or --state)")
+    sc.add_argument("results", type=Path, nargs="*", help="result files, one per deformed state: a `workbench stereo` "
+                         "result is scored against the state of the images it measured (its manifest.json says which); "
+                         "another file's state is the number its name ends with (0 = the reference), or --state")
     sc.add_argument("--format", choices=READERS, default=None,
                     help="result file format (default: the engine's, else native)")
     sc.add_argument("--columns", default=None, help="for --format csv: x=COL,y=COL,u=COL,v=COL[,X=..,Y=..,Z=..,"
@@ -37,23 +38,44 @@ def add_parser(sub) -> None:
 
 
 def _states_of(dataset, paths: list[Path], state: int | None) -> list[tuple[int, Path]]:
-    from workbench.results import state_of
+    """The dataset state of each result file: the state of the images the file says it measured (a ``workbench
+    stereo`` result, whatever its name), else ``--state``, else the number its name ends with (state 0 is the
+    reference in every file of this project: ``state_001.csv`` is the first deformed state)."""
+    from workbench.results import measured_images, state_of
+    from workbench.scoring.datasets import state_of_images
 
-    if state is not None:
-        if len(paths) != 1:
-            raise ValueError(f"--state names the state of one result file, got {len(paths)} files")
-        return [(state, paths[0])]
-    if len(paths) == 1 and dataset.n_states == 2:
-        return [(1, paths[0])]
+    if state is not None and len(paths) != 1:
+        raise ValueError(f"--state names the state of one result file, got {len(paths)} files")
     out = []
     for p in paths:
-        k = state_of(p)
-        if k is None:
-            raise ValueError(f"{p}: the file name ends with no state number; give --state")
-        if k == 0 and len(paths) > 1:
-            print(f"  {p}: state 0 is the reference (nothing to score), left out")
-            continue
+        measured = measured_images(p)
+        if measured is not None:
+            k = state_of_images(dataset, measured)
+            if state is not None and state != k:
+                raise ValueError(f"--state {state}: {p} measured the images of state {k} "
+                                 f"({', '.join(Path(str(v)).name for v in measured.state.values())}), says "
+                                 f"{measured.record}")
+            how = f"its images are state {k}'s ({measured.record.name})"
+        elif state is not None:
+            k, how = state, "--state"
+        elif len(paths) == 1 and dataset.n_states == 2:
+            k, how = 1, "the dataset's one deformed state"
+        else:
+            k = state_of(p)
+            if k is None:
+                raise ValueError(f"{p}: the file name ends with no state number; give --state")
+            how = "the number its name ends with"
+        if k == 0:
+            if len(paths) > 1:
+                print(f"  {p}: state 0 is the reference (nothing to score), left out ({how})")
+                continue
+            raise ValueError(f"{p} is the result of state 0, the reference ({how}): nothing to score")
         out.append((k, p))
+    ks = [k for k, _ in out]
+    twice = sorted({k for k in ks if ks.count(k) > 1})
+    if twice:
+        raise ValueError(f"several result files give state {twice[0]}: "
+                         f"{', '.join(str(p) for k, p in out if k == twice[0])}")
     return sorted(out)
 
 

@@ -61,6 +61,16 @@ def _check_against_calibration(image: np.ndarray, camera, what: str) -> None:
         raise ValueError(f"{what} is {size_text(image)} but the calibration is for {camera.width} x {camera.height} px")
 
 
+def _image_record(state: int, result_file: str, left, right, left_image, right_image) -> dict:
+    """The manifest's record of one result file: its state number, the images it measured (absolute paths) and
+    their :func:`workbench.results.pixels_sha256`."""
+    from workbench.results import pixels_sha256
+
+    return {"state": state, "file": result_file, "left": str(resolved(Path(left))),
+            "right": str(resolved(Path(right))), "left_pixels_sha256": pixels_sha256(left_image),
+            "right_pixels_sha256": pixels_sha256(right_image)}
+
+
 def stereo_command(args) -> int:
     from measurement.dic import DICSettings
     from measurement.stereo_dic import StereoMatchError, StereoQualityError, measure_state, reference_shape
@@ -91,7 +101,8 @@ def stereo_command(args) -> int:
     poi_grid(left_ref, args, mask, what="left reference image")
     auto_roi = auto_roi_settings(args)
     settings = DICSettings(subset_size=args.subset, step=args.step, order=args.order, min_zncc=args.min_zncc)
-    names = [f"state_{k:03d}" for k in range(len(left_files))]
+    # One numbering everywhere: the reference is state 0, the k-th deformed pair state k (as in a dataset).
+    names = [f"state_{k:03d}" for k in range(1, len(left_files) + 1)]
     planned = ["reference.csv", "reference.vtk", "summary.csv"] + [f"{n}.{e}" for n in names for e in ("csv", "vtk")]
     prepare_folder(args.out, "stereo", planned, overwrite=args.overwrite, dry_run=True)
     thresholds = dict(max_median_residual_px=args.max_residual_px, min_measured_fraction=args.min_measured_fraction)
@@ -112,26 +123,31 @@ def stereo_command(args) -> int:
     if shape.auto_roi_report is not None:
         print(f"reference {shape.auto_roi_report.summary()}")
     rows = [{"state": "reference", "left": str(args.left_ref), "right": str(args.right_ref), "quality": q}]
+    # What each result file measured (by the images' grey levels): `workbench score` identifies its state by them.
+    images = [_image_record(0, "reference.csv", args.left_ref, args.right_ref, left_ref, right_ref)]
     from tqdm import tqdm
 
     from measurement.image_io import read_grey
     skipped = []
-    for k, (fl, fr) in enumerate(tqdm(list(zip(left_files, right_files)), desc="stereo states")):
+    for i, (fl, fr) in enumerate(tqdm(list(zip(left_files, right_files)), desc="stereo states")):
+        k = i + 1
         what = f"state {k} ({fl}, {fr})"
+        left_def, right_def = read_grey(fl), read_grey(fr)
         try:
             state = measure_state(rig.left, rig.right, rig.R_right_from_left, rig.T_right_from_left_mm, shape,
-                                  left_ref, read_grey(fl), read_grey(fr), settings, name=what, **thresholds)
+                                  left_ref, left_def, right_def, settings, name=what, **thresholds)
         except StereoMatchError as err:
             message = f"{err}{hint}" if isinstance(err, StereoQualityError) else f"{what}: {err}"
             tqdm.write(f"workbench stereo: state {k} skipped: {message}", file=sys.stderr)
             skipped.append(k)
-            rows.append({"state": names[k], "left": fl, "right": fr, "quality": getattr(err, "quality", None),
+            rows.append({"state": names[i], "left": fl, "right": fr, "quality": getattr(err, "quality", None),
                          "error": message})
             continue
-        written += [write_state_csv(args.out / f"{names[k]}.csv", shape, state).name,
-                    write_state_vtk(args.out / f"{names[k]}.vtk", shape, state).name]
+        written += [write_state_csv(args.out / f"{names[i]}.csv", shape, state).name,
+                    write_state_vtk(args.out / f"{names[i]}.vtk", shape, state).name]
+        images.append(_image_record(k, f"{names[i]}.csv", fl, fr, left_def, right_def))
         q = state.quality
-        rows.append({"state": names[k], "left": fl, "right": fr, "quality": q,
+        rows.append({"state": names[i], "left": fl, "right": fr, "quality": q,
                      "mean_D_mm": float(np.nanmean(state.D_mm[state.valid]))})
         tqdm.write(f"state {k} ({Path(fl).name}, {Path(fr).name}): {q.measured}/{q.points} points, median residual "
                    f"{q.median_residual_px:.4f} px, 95th percentile {q.p95_residual_px:.4f} px, mean D "
@@ -146,7 +162,7 @@ def stereo_command(args) -> int:
                      "step": args.step, "order": args.order, "min_zncc": args.min_zncc, **thresholds,
                      "auto_roi": None if auto_roi is None else vars(auto_roi) | {"noise_sigma_used_grey":
                                                                                   shape.noise_sigma_grey},
-                     "skipped_states": skipped})
+                     "skipped_states": skipped, "images": images})
     print(f"wrote {args.out} ({len(left_files) - len(skipped)} of {len(left_files)} states; summary.csv)")
     if skipped:
         print(f"workbench stereo: error: {len(skipped)} of {len(left_files)} states could not be measured (states "

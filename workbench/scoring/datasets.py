@@ -13,6 +13,7 @@ column, y = row, pixel centres at integer coordinates.
 """
 from __future__ import annotations
 
+import functools
 import json
 from dataclasses import dataclass
 from pathlib import Path
@@ -124,6 +125,54 @@ def open_dataset(source: str | Path, store=None) -> Dataset:
     if missing:
         raise DatasetError(f"{source}: images missing: {', '.join(missing[:3])}")
     return Dataset(source, kind, images, _image_size(images[0]["left"]), labels)
+
+
+def image_sha256(dataset: Dataset) -> list[dict[str, str]]:
+    """:func:`workbench.results.pixels_sha256` of every state's images, ``[{"left": hash[, "right": hash]}, ...]``."""
+    return [{side: _pixels_sha256_of_file(path) for side, path in state.items()} for state in dataset.images]
+
+
+@functools.lru_cache(maxsize=512)
+def _pixels_sha256_cached(path: str, mtime_ns: int, size: int) -> str:
+    from measurement.image_io import read_grey
+    from workbench.results import pixels_sha256
+
+    return pixels_sha256(read_grey(path))
+
+
+def _pixels_sha256_of_file(path: Path) -> str:
+    stat = Path(path).stat()
+    return _pixels_sha256_cached(str(Path(path).resolve()), stat.st_mtime_ns, stat.st_size)
+
+
+def state_of_images(dataset: Dataset, measured) -> int:
+    """The dataset state whose images a result measured (:class:`workbench.results.MeasuredImages`), by content.
+
+    The images are compared by their grey levels (:func:`workbench.results.pixels_sha256`), not by name or place:
+    an exported copy (PNG or re-encoded TIFF) is the same image.
+
+    Raises
+    ------
+    DatasetError
+        The result's reference pair is not the dataset's reference, or its state pair is no state's pair of the
+        dataset (the message names the result's images and the dataset's).
+    """
+    hashes = image_sha256(dataset)
+    sides = tuple(hashes[0])
+
+    def pair(names: dict) -> str:
+        return " + ".join(Path(str(names[s])).name for s in sides)
+
+    ours = [pair({s: dataset.images[k][s] for s in sides}) for k in range(dataset.n_states)]
+    shown = ", ".join(f"state {k}: {n}" for k, n in enumerate(ours[:4])) + (" ..." if len(ours) > 4 else "")
+    if any(measured.reference_sha256.get(s) != hashes[0][s] for s in sides):
+        raise DatasetError(f"{measured.record}: the result's reference images ({pair(measured.reference)}) are not the "
+                           f"reference of dataset {dataset.folder} ({ours[0]}): it was measured on other images")
+    for k, state in enumerate(hashes):
+        if all(measured.state_sha256.get(s) == state[s] for s in sides):
+            return k
+    raise DatasetError(f"{measured.record}: the result measured {pair(measured.state)}, which are the images of no "
+                       f"state of dataset {dataset.folder} ({shown})")
 
 
 def render_scenario_dataset(path: Path, store=None) -> Path:
