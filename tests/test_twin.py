@@ -221,16 +221,33 @@ def test_incomplete_stereo_inputs_are_refused(tmp_path):
 
 def test_cli_twin_writes_the_report_and_says_errors_in_one_line(tmp_path, capsys):
     """``workbench twin`` on the real excerpt: exit 0, report.html with its sections, twin.json and the points CSV;
-    a missing file is exit 2 with one line naming it."""
+    a missing file is exit 2 with one line naming it. The terminal's advice is the report's verdict (issue 35: it
+    printed "top recommendation: shape function order 2 -> 1" while the report said that change triples l10 and no
+    change keeps the resolution), and the report describes the automatic ROI it used (it said "whole image")."""
     import json
 
     from workbench.cli import main
 
     out = tmp_path / "twin"
     assert main(["twin", "--left", str(DATA / "staticb_cam0_0.png"), "--static-left", str(DATA / "staticb_cam0_1.png"),
-                 "--subset", "27", "--step", "10", "--repeats", "1", "--out", str(out)]) == 0
+                 "--subset", "27", "--step", "10", "--repeats", "1", "--auto-roi", "--out", str(out)]) == 0
     text = capsys.readouterr().out
-    assert "predicted static noise (1 sigma): u " in text and "top recommendation:" in text
+    assert "predicted static noise (1 sigma): u " in text
+    rows = json.loads((out / "twin.json").read_text())["whatif"]
+    ranked = sorted((r for r in rows if r.get("rank")), key=lambda r: r["rank"])
+    keeper = next((r for r in ranked if r["keeps_resolution"]), None)
+    assert ranked and not ranked[0]["keeps_resolution"]     # on this pair the lowest noise costs resolution
+    verdict = next(line for line in text.splitlines() if line.startswith("best change that keeps your spatial"))
+    assert (keeper["label"] in verdict) if keeper else verdict.endswith("none; every change that lowers the noise "
+                                                                        "costs resolution")
+    assert ranked[0]["label"] not in verdict and "top recommendation" not in text
+    cost = next(line for line in text.splitlines() if line.startswith("lowest noise at any resolution: "))
+    assert ranked[0]["label"] in cost and f"l10 {rows[0]['l10_theory_px']:.3g} -> " in cost
+    md = (out / "report.md").read_text()
+    for line in (verdict, cost):                       # word for word in the report
+        assert f"{line[0].upper()}{line[1:]}." in md
+    roi = next(line for line in md.splitlines() if "**ROI**" in line)
+    assert "whole image, then the automatic ROI (--auto-roi" in roi and " px kept (" in roi, roi
     html = (out / "report.html").read_text()
     for heading in ("Predicted noise floor", "What if", "Speckle quality", "Maps over the ROI"):
         assert heading in html

@@ -43,5 +43,5 @@ ax.set_xlabel("predicted static noise, RMS of u and v (px)")
 ax.legend(fontsize=7)
 fig.tight_layout()
 w = result.whatif_real
-print(f"top recommendation '{w['label']}': measured on the real pair {w['measured_before']:.4f} -> "
+print(f"lowest-noise change '{w['label']}': measured on the real pair {w['measured_before']:.4f} -> "
       f"{w['measured_after']:.4f} px ({100 * w['measured_change']:+.0f} %), predicted {100 * w['predicted_change']:+.0f} %")

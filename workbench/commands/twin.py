@@ -76,6 +76,7 @@ def twin_command(args) -> int:
     import time
 
     from workbench.twin import TwinSettings, run_twin, write_twin_report
+    from workbench.twin.whatif import advice
 
     for option in ("calib", "left", "right", "static_left", "static_right", "mask"):
         value = getattr(args, option)
@@ -109,9 +110,9 @@ def twin_command(args) -> int:
         print("measured on your static pair: " + ", ".join(
             f"{k.split('_')[0]} {c['measured']:.3g} (predicted/measured {c['ratio']:.2f})"
             for k, c in result.comparison.items() if not k.endswith("_ue")))
-    top = next((r for r in result.whatif if r.get("rank") == 1), None)
-    if top is not None:
-        print(f"top recommendation: {top['label']} ({100 * top['change']:+.0f} % {top['objective']} noise)")
+    if result.whatif:
+        for line in advice(result.whatif)["lines"]:       # the report's verdict, word for word
+            print(line)
     print(f"wrote {html} ({time.perf_counter() - start:.0f} s)")
     return 0
 

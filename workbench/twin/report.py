@@ -17,6 +17,7 @@ import numpy as np
 from labio.atomic import atomic_write_text, atomic_writer
 
 from ..reporting.html_report import write_html_report
+from .whatif import advice
 
 
 def _fmt(value, digits: int = 3) -> str:
@@ -198,8 +199,7 @@ def report_markdown(result, figures: dict) -> str:
     kind = "stereo rig" if stereo else "one camera (2-D DIC)"
     lines += [f"- **rig**: {kind}" + (f" from `{result.inputs.calibration}`" if result.inputs.calibration else ""),
               f"- **images**: " + ", ".join(f"{k} `{Path(v).name}`" for k, v in s["inputs"].items()),
-              f"- **bit depth**: {result.inputs.bit_depth}; **ROI**: {result.inputs.roi or 'whole image'}"
-              f"{' (with a mask)' if result.inputs.mask is not None else ''}",
+              f"- **bit depth**: {result.inputs.bit_depth}; **ROI**: {result.roi_used}",
               f"- **settings**: subset {result.settings.subset_px} px, step {s['dic_step_px']} px, order "
               f"{result.settings.order}, {result.settings.interpolation}, strain window "
               f"{result.settings.strain_window} points (virtual strain gauge {_fmt(p.get('vsg_px'))} px)",
@@ -260,16 +260,14 @@ def report_markdown(result, figures: dict) -> str:
         lines.append("")
         if figures.get("whatif"):
             lines += [f"![what-if]({figures['whatif']})", ""]
-    ranked = [r for r in result.whatif if r.get("rank")]
-    if ranked:
-        same = next((r for r in ranked if r.get("keeps_resolution")), None)
-        lines.append("Best change that keeps your spatial resolution (l10 and strain gauge within 10 %): " +
-                     (f"**{same['label']}** ({100 * same['change']:+.0f} %)." if same else
-                      "none; every improvement above costs resolution (see its l10 and VSG)."))
-        lines.append("")
+    if result.whatif:
+        # the same verdict the terminal prints (one function says it)
+        for k, line in enumerate(advice(result.whatif)["lines"]):
+            text = f"{line[0].upper()}{line[1:]}."
+            lines += [f"**{text}**" if k == 0 else text, ""]
     if result.whatif_real:
         w = result.whatif_real
-        lines += [f"**Top recommendation applied to your static pair** ({w['label']}): measured "
+        lines += [f"**The lowest-noise change applied to your static pair** ({w['label']}): measured "
                   f"{_fmt(w['measured_before'])} -> {_fmt(w['measured_after'])} "
                   f"({100 * w['measured_change']:+.0f} %); the twin predicted {_fmt(w['predicted_before'])} -> "
                   f"{_fmt(w['predicted_after'])} ({100 * w['predicted_change']:+.0f} %).", ""]

@@ -88,6 +88,8 @@ class TwinResult:
     notes: list = field(default_factory=list)
     #: The mask of points of interest the instrument used (the user's, and the automatic ROI's), or None.
     mask: np.ndarray | None = field(default=None, repr=False)
+    #: The region the instrument measured, in words (rectangle, mask, automatic ROI and what it kept).
+    roi_used: str = "whole image"
 
     @property
     def unit(self) -> str:
@@ -98,7 +100,8 @@ class TwinResult:
                       "settings": self.settings.__dict__, "dic_step_px": self.settings.dic().step,
                       "inputs": {k: str(v.path) for k, v in self.inputs.infos.items()},
                       "calibration": str(self.inputs.calibration) if self.inputs.calibration else None,
-                      "bit_depth": self.inputs.bit_depth, "roi": self.inputs.roi, "speckle": self.speckle,
+                      "bit_depth": self.inputs.bit_depth, "roi": self.inputs.roi, "roi_used": self.roi_used,
+                      "speckle": self.speckle,
                       "noise_models": {k: _noise_dict(m) for k, m in self.noise_models.items()},
                       "prediction": self.prediction, "measured": self.measured, "comparison": self.comparison,
                       "whatif": self.whatif, "whatif_real": self.whatif_real, "timings_s": self.timings_s,
@@ -122,6 +125,14 @@ def _json(value):
     if isinstance(value, np.ndarray):
         return _json(value.tolist())
     return value
+
+
+def describe_roi(roi, mask, shape) -> str:
+    """The user's region in words: ``"whole image"``, ``"rectangle X0,Y0,X1,Y1"``, with a mask's pixel count."""
+    text = "whole image" if roi is None else "rectangle {},{},{},{} px".format(*roi)
+    if mask is not None:
+        text += f" and your mask ({int(np.count_nonzero(mask))} of {shape[0] * shape[1]} px)"
+    return text
 
 
 def static_motion_limit_px(image: np.ndarray, region: np.ndarray, sigma_grey: float) -> float:
@@ -266,7 +277,7 @@ def run_twin(left, right=None, static_left=None, static_right=None, *, calibrati
     bias, resolution : bool
         Predict the interpolation bias / l10 on the pattern.
     apply_top_to_real : bool
-        With a static pair, measure the real pair again with the top recommendation.
+        With a static pair, measure the real pair again with the lowest-noise change.
     allow_coarse : bool
         Go on when the speckle is too coarse or too fine for any subset (the advice is still reported).
     texture : {"photo", "generated"}
@@ -306,12 +317,16 @@ def run_twin(left, right=None, static_left=None, static_right=None, *, calibrati
     measured = None
     real_shape = None
     roi_rect, mask_arr = inputs.roi, inputs.mask
+    roi_used = describe_roi(roi_rect, mask_arr, images["left"].shape)
     if auto_roi:
         auto = texture_mask(images["left"], dic.subset_size)      # noise estimated from the image, as `stereo` does
+        before = int(region.sum())
         mask_arr = auto if mask_arr is None else (mask_arr & auto)
         region = region & auto
         if not region.any():
             raise ValueError("--auto-roi: no subset of the left reference has enough texture")
+        roi_used += (f", then the automatic ROI (--auto-roi: subsets of {dic.subset_size} px with enough texture): "
+                     f"{int(region.sum())} of its {before} px kept ({100 * region.sum() / before:.0f} %)")
     if inputs.stereo:
         say("instrument: reference shape of your pair")
         real_shape = reference_shape(rig.left, rig.right, rig.R_right_from_left, rig.T_right_from_left_mm,
@@ -487,11 +502,11 @@ def run_twin(left, right=None, static_left=None, static_right=None, *, calibrati
         top = next((r for r in rows if r.get("rank") == 1), None)
         applicable = next((r for r in rows if r.get("rank") and r.get("applies_to_real", True)), None)
         if top is not None and top is not applicable:
-            notes.append(f"the top recommendation ({top['label']}) changes the optics, which a recorded pair cannot "
+            notes.append(f"the lowest-noise change ({top['label']}) changes the optics, which a recorded pair cannot "
                          "show; the best settings change was applied to your pair instead")
         top = applicable
         if top is not None and measured is not None and apply_top_to_real:
-            say(f"instrument: your static pair with the top recommendation ({top['label']})")
+            say(f"instrument: your static pair with the lowest-noise change ({top['label']})")
             s = DICSettings(subset_size=top["subset_px"], step=top["step_px"], order=top["order"],
                             interpolation=dic.interpolation)
             if inputs.stereo:
@@ -522,4 +537,5 @@ def run_twin(left, right=None, static_left=None, static_right=None, *, calibrati
             "sssig": _points_sssig(images["left"], base_run.x_px, base_run.y_px, dic.subset_size,
                                    noise_models["left"].sigma_grey)}
     return TwinResult(inputs, settings, speckle, noise_models, prediction, None if measured is None else
-                      measured.summary(), comparison, rows, whatif_real, maps, scene, times, notes, mask_arr)
+                      measured.summary(), comparison, rows, whatif_real, maps, scene, times, notes, mask_arr,
+                      roi_used)

@@ -110,5 +110,41 @@ def rank(rows: list[dict], objective: str = "displacement") -> list[dict]:
     return [rows[0], *rest]
 
 
+def advice(rows: list[dict]) -> dict:
+    """The what-if verdict, the one the report and the terminal both state.
+
+    Returns ``{"keeps_resolution": row or None, "noise_only": row or None, "lines": [str, ...]}``: the best ranked
+    change whose spatial resolution stays yours (``keeps_resolution`` of :func:`rank`), the top of the noise-only
+    ranking, and the sentences that say so (the noise-only top is named with what it costs in l10 and strain gauge
+    when it is not the change that keeps the resolution). Rows as :func:`rank` returns them.
+    """
+    ranked = [r for r in rows if r.get("rank")]
+    same = next((r for r in ranked if r.get("keeps_resolution")), None)
+    top = ranked[0] if ranked else None
+    if top is None:
+        return {"keeps_resolution": None, "noise_only": None,
+                "lines": ["no change of one setting lowers the predicted noise by more than 2 %: keep yours"]}
+    objective = top.get("objective", "displacement")
+    base = rows[0]
+
+    def change(row) -> str:
+        return f"{100 * row['change']:+.0f} % {objective} noise"
+
+    lines = ["best change that keeps your spatial resolution (l10 and strain gauge within 10 %): " +
+             (f"{same['label']} ({change(same)})" if same else
+              "none; every change that lowers the noise costs resolution")]
+    if top is not same:
+        cost = [f"l10 {_num(base.get('l10_theory_px'))} -> {_num(top.get('l10_theory_px'))} px"]
+        if _num(top.get("vsg_px")) != _num(base.get("vsg_px")):
+            cost.append(f"strain gauge {_num(base.get('vsg_px'))} -> {_num(top.get('vsg_px'))} px")
+        lines.append(f"lowest noise at any resolution: {top['label']} ({change(top)}, at the cost of "
+                     f"{', '.join(cost)})")
+    return {"keeps_resolution": same, "noise_only": top, "lines": lines}
+
+
+def _num(value) -> str:
+    return "-" if value is None or not np.isfinite(value) else f"{value:.3g}"
+
+
 def theory_l10(settings) -> float:
     return float(theoretical_l10_px(settings.subset_size, settings.order))
