@@ -98,7 +98,7 @@ def test_gate_passes_on_its_baseline_and_fails_when_degraded(tmp_path):
     again = _run(path, tmp_path / "again", "--junit", str(tmp_path / "again.xml"))
     assert again.returncode == 0, again.stdout + again.stderr
     suite = ET.parse(tmp_path / "again.xml").getroot()
-    assert suite.get("tests") == "3" and suite.get("failures") == "0"
+    assert suite.get("tests") == "4" and suite.get("failures") == "0"     # 3 metrics and the baseline's own case
 
     bicubic = _run(_gate(tmp_path, interp="bicubic"), tmp_path / "bicubic", "--junit", str(tmp_path / "bicubic.xml"))
     assert bicubic.returncode == 1
@@ -112,6 +112,48 @@ def test_gate_passes_on_its_baseline_and_fails_when_degraded(tmp_path):
     failed = {c.get("name") for c in ET.parse(tmp_path / "small.xml").getroot() if c.find("failure") is not None}
     assert "random_error_px" in failed                  # a 17 px subset roughly doubles the noise floor
     assert "FAIL" in (tmp_path / "small" / "gate.md").read_text()
+
+
+def test_a_stale_baseline_is_said_and_fails_the_gate_when_required(tmp_path):
+    """Issue 35: the committed baseline was not what a fresh clone measures and nothing said so. A baseline records
+    the hashes of the sources that measured it; one whose source has changed since (here: its recorded hash of
+    measurement/dic/icgn.py no longer matches the file), or that records none, is named stale with the file; with
+    --require-current-baseline the gate fails on it (exit 1, a JUnit failure), without it the gate only says so."""
+    path = _gate(tmp_path)
+    assert _run(path, tmp_path / "base", "--update-baseline").returncode == 0
+    doc = json.loads((tmp_path / "baseline.json").read_text())
+    sources = doc["measured_with"]["sources"]
+    assert "measurement/dic/icgn.py" in sources                      # the code that measured the figures
+    assert all(len(h) == 64 for h in sources.values()) and "workbench/scoring/gate.py" in sources
+    current = _run(path, tmp_path / "current", "--require-current-baseline")
+    assert current.returncode == 0 and "baseline.json is current" in current.stdout, current.stdout
+
+    sources["measurement/dic/icgn.py"] = "0" * 64                    # the IC-GN code changed after the baseline
+    (tmp_path / "baseline.json").write_text(json.dumps(doc))
+    said = _run(path, tmp_path / "said")
+    assert said.returncode == 0 and "is STALE" in said.stdout and "measurement/dic/icgn.py" in said.stdout
+    failed = _run(path, tmp_path / "failed", "--require-current-baseline", "--junit", str(tmp_path / "stale.xml"))
+    assert failed.returncode == 1 and "FAILED (the baseline is stale)" in failed.stdout
+    case = next(c for c in ET.parse(tmp_path / "stale.xml").getroot() if c.get("classname") == "gate.baseline")
+    assert "measurement/dic/icgn.py" in case.find("failure").text
+
+    del doc["measured_with"]                                         # an old baseline: nothing says which code
+    (tmp_path / "baseline.json").write_text(json.dumps(doc))
+    old = _run(path, tmp_path / "old", "--require-current-baseline")
+    assert old.returncode == 1 and "records no source fingerprint" in old.stdout
+
+
+def test_the_committed_gate_baseline_was_measured_by_this_code():
+    """gates/baseline.json is what this checkout measures: every source file that measured it hashes as recorded
+    (regenerate with `workbench gate gates/gates.toml --update-baseline --out DIR` after changing one)."""
+    from pathlib import Path
+
+    from workbench.scoring.gate import DEFAULT_ENGINE, baseline_staleness
+
+    doc = json.loads((Path(__file__).parents[1] / "gates" / "baseline.json").read_text())
+    status = baseline_staleness(doc, DEFAULT_ENGINE)
+    assert not status["stale"], status["reasons"]
+    assert len(doc["measured_with"]["sources"]) > 20
 
 
 ONE_CHECK = """

@@ -15,6 +15,9 @@ def add_parser(sub) -> None:
     gt.add_argument("--junit", type=Path, default=None, help="write JUnit XML here")
     gt.add_argument("--update-baseline", action="store_true",
                     help="write the measured values as the new baseline instead of comparing")
+    gt.add_argument("--require-current-baseline", action="store_true",
+                    help="fail when the baseline was not measured by this checkout's code (a source file that "
+                         "measured it has changed since, or it records none); without it the gate only says so")
     gt.add_argument("--store", type=Path, default=None, help="render store (default $WORKBENCH_STORE)")
     gt.add_argument("--out", type=Path, required=True)
 

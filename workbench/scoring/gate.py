@@ -326,9 +326,104 @@ def verdict(rule: MetricRule, value: float | None, baseline: float | None) -> tu
     return True, f"measured {value:.6g}{ref}"
 
 
+#: The project's packages whose code, when it ran during a gate, decides the gate's figures ...
+FINGERPRINT_PACKAGES = ("scenes", "measurement", "labio", "workbench")
+#: ... but for the rooms that only parse options, write reports or run other commands (loaded with the CLI).
+NOT_FINGERPRINTED = ("workbench.cli", "workbench.__main__", "workbench.commands", "workbench.reporting",
+                     "workbench.twin", "workbench.studies")
+#: Versions a baseline is compared on: a difference is said (it may move a figure), never failed.
+COMPARED_VERSIONS = ("python", "numpy", "scipy", "numba", "mitsuba", "drjit", "machine")
+
+
+def _project_root() -> Path:
+    return Path(__file__).resolve().parents[2]
+
+
+def _file_sha256(path: Path) -> str:
+    import hashlib
+
+    return hashlib.sha256(path.read_bytes()).hexdigest()
+
+
+def source_fingerprint(gate_path: Path | None = None) -> dict:
+    """What the figures just measured were measured with: ``{"commit", "dirty", "sources"}``.
+
+    ``sources`` maps every module of the project loaded in this process (the code that ran the checks), and the
+    gate file itself, to its SHA-256: a baseline whose sources still hash the same was measured by this code.
+    ``commit`` is git's HEAD where the checkout has one (for a reader; the hashes decide).
+    """
+    import subprocess
+    import sys
+
+    root = _project_root()
+    files = set()
+    for name, module in list(sys.modules.items()):
+        path = getattr(module, "__file__", None)
+        if path and name.split(".")[0] in FINGERPRINT_PACKAGES and not any(
+                name == n or name.startswith(n + ".") for n in NOT_FINGERPRINTED):
+            resolved_path = Path(path).resolve()
+            if resolved_path.is_relative_to(root) and resolved_path.suffix == ".py":
+                files.add(resolved_path)
+    if gate_path is not None and Path(gate_path).resolve().is_relative_to(root):
+        files.add(Path(gate_path).resolve())
+    sources = {p.relative_to(root).as_posix(): _file_sha256(p) for p in sorted(files)}
+    commit, dirty = None, None
+    try:
+        commit = subprocess.run(["git", "rev-parse", "HEAD"], cwd=root, capture_output=True, text=True,
+                                timeout=10, check=True).stdout.strip() or None
+        dirty = bool(subprocess.run(["git", "status", "--porcelain", "--", *sources], cwd=root, capture_output=True,
+                                    text=True, timeout=10, check=True).stdout.strip())
+    except (OSError, subprocess.SubprocessError):
+        pass
+    return {"commit": commit, "dirty": dirty, "sources": sources}
+
+
+def baseline_staleness(baseline_doc: dict, engine_spec: str) -> dict:
+    """Whether a baseline was measured by this checkout's code: ``{"stale": bool, "reasons": [...],
+    "notes": [...]}``.
+
+    Stale (a reason each): the baseline records no sources (written before they were recorded), a recorded source
+    file that now hashes otherwise or is gone, another engine. Notes: package versions that differ (a figure may
+    move with them; the code is what a baseline is pinned to).
+    """
+    reasons, notes = [], []
+    recorded = baseline_doc.get("measured_with")
+    if baseline_doc.get("engine") not in (None, engine_spec):
+        reasons.append(f"it was measured with the engine {baseline_doc.get('engine')}, this run uses {engine_spec}")
+    if not isinstance(recorded, dict) or not isinstance(recorded.get("sources"), dict):
+        reasons.append("it records no source fingerprint (written by an older workbench), so nothing says which "
+                       "code measured it")
+    else:
+        root = _project_root()
+        changed = []
+        for rel, digest in recorded["sources"].items():
+            path = root / rel
+            if not path.is_file():
+                changed.append(f"{rel} (gone)")
+            elif _file_sha256(path) != digest:
+                changed.append(rel)
+        if changed:
+            shown = ", ".join(changed[:5]) + (f" and {len(changed) - 5} more" if len(changed) > 5 else "")
+            commit = recorded.get("commit")
+            reasons.append(f"{len(changed)} of the {len(recorded['sources'])} source files that measured it changed "
+                           f"since{f' commit {commit[:10]}' if commit else ''}: {shown}")
+    from workbench.studies.sweep import environment_versions
+
+    now = environment_versions()
+    then = baseline_doc.get("versions", {}) or {}
+    for key in COMPARED_VERSIONS:
+        if key in then and then.get(key) != now.get(key):
+            notes.append(f"{key} {then.get(key)} when the baseline was measured, {now.get(key)} now")
+    return {"stale": bool(reasons), "reasons": reasons, "notes": notes}
+
+
 def run_gate(gate: Gate, out: Path, engine_spec: str | None = None, baseline_path: Path | None = None,
-             store=None, update_baseline: bool = False, log=print) -> dict:
-    """Run every check, judge every metric; returns the record written to ``gate.json``."""
+             store=None, update_baseline: bool = False, log=print, require_current_baseline: bool = False) -> dict:
+    """Run every check, judge every metric; returns the record written to ``gate.json``.
+
+    The baseline's staleness (:func:`baseline_staleness`) is said in the log and the record
+    (``baseline_status``); with ``require_current_baseline`` a stale baseline fails the gate.
+    """
     from workbench.engines import check_settings, instrument_settings, parse_engine
     from workbench.store import DatasetStore
 
@@ -344,12 +439,14 @@ def run_gate(gate: Gate, out: Path, engine_spec: str | None = None, baseline_pat
             raise GateError(str(err)) from None
     ran_with = {"engine": engine.spec, "subset_px": inst.subset_px, "step_px": inst.step_px, **options}
     baseline_path = baseline_path or gate.baseline
-    baseline = {}
+    baseline, status = {}, None
     if baseline_path is not None and baseline_path.is_file() and not update_baseline:
         try:
-            baseline = json.loads(baseline_path.read_text())["metrics"]
+            baseline_doc = json.loads(baseline_path.read_text())
+            baseline = baseline_doc["metrics"]
         except (json.JSONDecodeError, KeyError, TypeError) as err:
             raise GateError(f"{baseline_path}: not a gate baseline ({err})") from None
+        status = baseline_staleness(baseline_doc, engine.spec) | {"file": str(baseline_path)}
     elif baseline_path is not None and not update_baseline:
         log(f"no baseline {baseline_path}: thresholds only (write one with --update-baseline)")
     out.mkdir(parents=True, exist_ok=True)
@@ -380,10 +477,15 @@ def run_gate(gate: Gate, out: Path, engine_spec: str | None = None, baseline_pat
                                                                                                    ran_with)})
         log(f"  {timings[check.name]:.1f} s: " + ", ".join(f"{k} {v:.4g}" for k, v in values.items()
                                                           if isinstance(v, float)) if values else f"  {error}")
+    if status is not None:
+        for line in status_lines(status, require_current_baseline):
+            log(line)
     record = {"gate": gate.name, "file": str(gate.path), "engine": engine.spec,
               "instrument": {k: getattr(inst, k) for k in inst.__dataclass_fields__},
-              "passed": all(r["passed"] for r in rows), "metrics": rows, "timings_s": timings,
-              "total_s": round(sum(timings.values()), 2)}
+              "passed": all(r["passed"] for r in rows) and not (require_current_baseline and status is not None
+                                                                 and status["stale"]),
+              "metrics": rows, "timings_s": timings, "total_s": round(sum(timings.values()), 2),
+              "baseline_status": status, "require_current_baseline": require_current_baseline}
     atomic_write_text(out / "gate.json", json.dumps(record, indent=1))
     if update_baseline:
         if baseline_path is None:
@@ -393,6 +495,7 @@ def run_gate(gate: Gate, out: Path, engine_spec: str | None = None, baseline_pat
         atomic_write_text(baseline_path, json.dumps(
             {"about": f"baseline of {gate.path.name}, written by workbench gate --update-baseline",
              "engine": engine.spec, "versions": environment_versions(),
+             "measured_with": source_fingerprint(gate.path),
              "metrics": {f"{r['check']}.{r['metric']}": r["value"] for r in rows}}, indent=1))
         log(f"wrote the baseline {baseline_path}")
     return record
@@ -406,6 +509,17 @@ def _ran_with(check: Check, inst: Instrument, engine_settings: dict) -> dict:
     if check.kind in ENGINE_CHECKS:
         return dict(engine_settings)
     return {"engine": "this project's stereo pipeline", **{k: getattr(inst, k) for k in inst.__dataclass_fields__}}
+
+
+def status_lines(status: dict, required: bool = False) -> list[str]:
+    """The baseline's staleness in words (empty reasons: current)."""
+    if not status["stale"]:
+        lines = [f"baseline {status['file']} is current: measured by this checkout's code"]
+    else:
+        lines = [f"baseline {status['file']} is STALE{' (the gate fails: --require-current-baseline)' if required else ''}"
+                 f": {'; '.join(status['reasons'])}. Its figures are not what this checkout measures; measure them "
+                 "again with `workbench gate GATE_FILE --update-baseline --out DIR` and commit the baseline"]
+    return lines + [f"note: {n}" for n in status["notes"]]
 
 
 def _settings_text(settings: dict) -> str:
@@ -443,6 +557,16 @@ def write_junit(record: dict, path: Path) -> None:
                 f"{r['check']}.{r['metric']}: {r['message']}{ran}")
         else:
             ET.SubElement(case, "system-out").text = r["message"] + ran
+    status = record.get("baseline_status")
+    if status is not None:                 # the baseline's own case: current, or stale (a failure only when required)
+        case = ET.SubElement(suite, "testcase", classname="gate.baseline", name="current", time="0")
+        text = "\n".join(status_lines(status, record.get("require_current_baseline", False)))
+        if status["stale"] and record.get("require_current_baseline"):
+            ET.SubElement(case, "failure", message=text.splitlines()[0], type="StaleBaseline").text = text
+            suite.set("failures", str(failures + 1))
+        else:
+            ET.SubElement(case, "system-out").text = text
+        suite.set("tests", str(len(record["metrics"]) + 1))
     ET.indent(suite)
     Path(path).parent.mkdir(parents=True, exist_ok=True)
     atomic_write_text(path, ET.tostring(suite, encoding="unicode", xml_declaration=True) + "\n")
@@ -450,18 +574,23 @@ def write_junit(record: dict, path: Path) -> None:
 
 def gate_command(args) -> int:
     gate = load_gate(args.gate_file)
-    record = run_gate(gate, args.out, args.engine, args.baseline, args.store, args.update_baseline)
+    record = run_gate(gate, args.out, args.engine, args.baseline, args.store, args.update_baseline,
+                      require_current_baseline=args.require_current_baseline)
     lines = table_lines(record)
+    status = record["baseline_status"]
     summary = [f"# Accuracy gate: {record['gate']}", "", f"Engine: `{record['engine']}`; instrument: "
                + ", ".join(f"{k} = {v}" for k, v in record["instrument"].items()) + ".", "",
-               *lines, "", f"{'PASSED' if record['passed'] else 'FAILED'} in {record['total_s']:.1f} s "
+               *lines, "", *([f"- {line}" for line in status_lines(status, record["require_current_baseline"])] + [""]
+                            if status is not None else []),
+               f"{'PASSED' if record['passed'] else 'FAILED'} in {record['total_s']:.1f} s "
                f"({', '.join(f'{k} {v:.1f} s' for k, v in record['timings_s'].items())})."]
     atomic_write_text(args.out / "gate.md", "\n".join(summary) + "\n")
     if args.junit is not None:
         write_junit(record, args.junit)
     print("\n".join(lines))
     n_fail = sum(not r["passed"] for r in record["metrics"])
-    verdict_text = "passed" if record["passed"] else f"FAILED ({n_fail} of {len(record['metrics'])} metrics)"
+    verdict_text = "passed" if record["passed"] else (f"FAILED ({n_fail} of {len(record['metrics'])} metrics)"
+                                                      if n_fail else "FAILED (the baseline is stale)")
     print(f"gate {verdict_text} in {record['total_s']:.1f} s; wrote {args.out / 'gate.md'}"
           + (f" and {args.junit}" if args.junit else ""))
     return 0 if record["passed"] or args.update_baseline else 1
