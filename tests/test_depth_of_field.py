@@ -64,3 +64,24 @@ def test_a_camera_whose_renders_missed_the_mc_target_is_named_in_the_report_text
     assert "scheimpflug camera's renders MISSED" not in text
     metrics["cameras"]["conventional"]["render_mc"] = {"ref": met}
     assert "MISSED" not in _render_text(metrics)
+
+
+def test_the_idics_analysis_table_describes_one_camera_2d_dic_not_stereo_matching():
+    """The depth-of-field experiment correlates each camera's images on their own (two noise draws of the static
+    render, and the plate moved in its plane); it matches no stereo pair and triangulates nothing, so its iDICs
+    analysis table must say so instead of the stereo experiments' matching row."""
+    import json
+    from pathlib import Path
+
+    from workbench.reporting.experiment_idics import idics_for
+
+    metrics = json.loads((Path(__file__).resolve().parents[1] / "reports" / "depth_of_field" / "metrics.json")
+                         .read_text())
+    metrics["shift_px"] = 0.4
+    text = "\n".join(idics_for("depth_of_field", metrics))
+    assert "stereo matching" not in text and "triangulation with tilt" not in text
+    row = next(line for line in text.splitlines() if line.startswith("| 2-D matching"))
+    assert row == ("| 2-D matching (each camera alone, no stereo) | per camera (tilted and untilted sensor): the "
+                   "static render's first sensor-noise draw → its second (noise floor) and → the render of the plate "
+                   "moved 0.4 px in its own plane (error against the true pixel motion of each material point); no "
+                   "triangulation between the cameras |")

@@ -139,7 +139,8 @@ def test_goals_in_um_scale_with_the_pixel_footprint(assembled):
     full = {g["figure"]: g for g in paper.goal_rows(assembled, PaperSettings.for_mode(False))}
     quarter = {g["figure"]: g for g in paper.goal_rows(assembled, PaperSettings.for_mode(True))}
     key = "Fig 5 plane-fit RMSE (µm)"
-    assert float(quarter[key]["goal"].split()[-1]) == pytest.approx(4 * float(full[key]["goal"].split()[-1]))
+    assert full[key]["goal"] == "≤ 13.3 µm"
+    assert quarter[key]["goal"] == "≤ 53.2 µm (scaled ×4 with the pixel footprint)"
     key = "reprojection RMS, left (px)"
     assert quarter[key]["goal"] == full[key]["goal"]          # pixels do not scale
 
@@ -212,3 +213,69 @@ def test_reports_say_how_many_images_the_deterministic_renderer_made():
     mixed = experiment_idics.render_lines({"speckle_renderers": {"polygon-quadrature": 40, "mitsuba": 2}})
     assert mixed[0].endswith("; 2 by Mitsuba where a view needed it.")
     assert experiment_idics.render_lines({"speckle_renderers": {"mitsuba": 2}}) == []
+
+
+def _table_rows(md: str, header_start: str) -> list[list[str]]:
+    """Body rows (cells) of the first pipe table whose header line starts with ``header_start``."""
+    lines = md.splitlines()
+    i = next(k for k, line in enumerate(lines) if line.startswith(header_start))
+    rows = []
+    for line in lines[i + 2:]:
+        if not line.startswith("|"):
+            break
+        rows.append([c.strip() for c in line.strip().strip("|").split(" | ")])
+    return rows
+
+
+def test_every_table_of_a_scaled_run_states_the_summary_goal_and_result(assembled):
+    """Quarter scale: the bending goals table and the rigid-motion table state the same goal as the summary for
+    each figure (the goal scaled with the pixel footprint, said to be scaled) and the same pass/fail. Before, the
+    bending table said NO against 0.1 µm while the summary said pass against 0.40 µm."""
+    from workbench.experiments.bending.report import write_bending_report
+    from workbench.experiments.rigid_motion.run import write_rigid_motion_report
+
+    bend = json.loads((assembled / "bending" / "metrics.json").read_text())
+    bend["scale"] = 0.25
+    at = next(r for r in bend["states"] if r["load_N"] == 1800.0)
+    at["U_rmse_um"] = [0.25, 0.05, 1.5]          # U: only the scaled goal (0.40) is met; W: neither (1.20)
+    write_bending_report(assembled / "bending", bend, {})
+    (assembled / "bending" / "metrics.json").write_text(json.dumps(bend))
+    rigid = json.loads((assembled / "rigid_motion" / "metrics.json").read_text())
+    rigid["scale"] = 0.25
+    write_rigid_motion_report(assembled / "rigid_motion" / "report.md", rigid)
+    (assembled / "rigid_motion" / "metrics.json").write_text(json.dumps(rigid))
+
+    write_paper_report(assembled, PaperSettings.for_mode(True), {}, 1.0)
+    md = (assembled / "report.md").read_text()
+    summary = {(r[0], r[1]): (r[3], r[5]) for r in _table_rows(md, "| experiment | figure | paper | goal |")}
+    bending = {r[0]: (r[1], r[3]) for r in _table_rows(md, "| figure | goal | measured | met |")}
+    verdict = {"pass": "yes", "fail": "NO"}
+    pairs = {"U RMSE vs FE truth at 1800 N (µm)": "U RMSE vs truth",
+             "V RMSE vs FE truth at 1800 N (µm)": "V RMSE vs truth",
+             "W RMSE vs FE truth at 1800 N (µm)": "W RMSE vs truth",
+             "strain magnitude RMSE vs windowed truth (% of peak)": "strain magnitude RMSE vs the windowed truth",
+             "neutral axis position error (mm)": "neutral axis, measured vs truth"}
+    for in_summary, in_bending in pairs.items():
+        goal, result = summary[("bending", in_summary)]
+        assert bending[in_bending] == (goal, verdict[result]), in_summary
+    assert summary[("bending", "U RMSE vs FE truth at 1800 N (µm)")] == \
+        ("≤ 0.40 µm (scaled ×4 with the pixel footprint)", "pass")
+    assert summary[("bending", "W RMSE vs FE truth at 1800 N (µm)")] == \
+        ("≤ 1.20 µm (scaled ×4 with the pixel footprint)", "fail")
+
+    header = next(line for line in md.splitlines() if line.startswith("| state | imposed (mm) |"))
+    assert "goal mean / std (µm, scaled ×4 with the pixel footprint)" in header
+    states = {float(r[1]): r for r in _table_rows(md, "| state | imposed (mm) |") if r[5] != "—"}
+    worst_key = next(k for k in summary if k[0] == "rigid motion" and k[1].endswith("worst state"))
+    imposed = float(re.search(r"at ([\d.]+) mm", worst_key[1]).group(1))
+    goal_mean = re.search(r"abs ≤ ([\d.]+) µm \(scaled ×4 with the pixel footprint\)",
+                          summary[worst_key][0]).group(1)
+    assert states[imposed][5].split(" / ")[0] == goal_mean
+    goal_std = re.search(r"≤ ([\d.]+) µm \(scaled ×4 with the pixel footprint\)",
+                         summary[("rigid motion", "std of D at 10 mm (µm)")][0]).group(1)
+    assert states[10.0][5].split(" / ")[1] == goal_std
+    # the per-state verdicts add up to the summary's count of states within the goals
+    count_key = next(k for k in summary if k[0] == "rigid motion" and k[1].startswith("states within"))
+    met_states = sum(1 for r in _table_rows(md, "| state | imposed (mm) |") if r[-1] == "yes")
+    assert rigid["states"] and f"{met_states}" == next(
+        r[4] for r in _table_rows(md, "| experiment | figure | paper | goal |") if (r[0], r[1]) == count_key)

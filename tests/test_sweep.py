@@ -313,3 +313,24 @@ def test_budget_refuses_a_metric_or_source_that_does_not_exist_before_any_work(t
     assert "budget.toml: budget.source[1] (shot noise 40 e-/grey): scenario.render.electrons: no such parameter" \
         in result.stderr
     assert not (tmp_path / "out").exists()
+
+
+@pytest.mark.parametrize("scheduler, expected, wrong", [
+    ("tcp://10.0.0.7:8786", "  connecting to the Dask scheduler at tcp://10.0.0.7:8786 ...", "starting"),
+    (None, "  starting 3 local Dask worker processes ...", "connecting")])
+def test_the_sweep_says_it_connects_to_a_given_scheduler_and_starts_only_its_own(tmp_path, monkeypatch, capsys,
+                                                                                  scheduler, expected, wrong):
+    """With --scheduler the sweep uses the user's scheduler: it must not claim to start one. The line comes from
+    run_sweep itself, just before it asks start_client for the client (stopped there: no cluster is needed)."""
+    import workbench.studies.sweep as sweep
+
+    def no_client(address, workers):
+        raise ConnectionError(f"stopped before connecting ({address}, {workers})")
+
+    monkeypatch.setattr(sweep, "start_client", no_client)
+    with pytest.raises(ConnectionError, match=r"stopped before connecting"):
+        run_sweep(_study(tmp_path), tmp_path / "out", store=DatasetStore(tmp_path / "store"), scheduler=scheduler,
+                  workers=3)
+    out = capsys.readouterr().out
+    assert expected in out.splitlines()
+    assert wrong not in out

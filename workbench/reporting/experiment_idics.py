@@ -50,11 +50,18 @@ def idics_for(stage: str, m: dict, level: int = 2) -> list[str]:
               ("aperture", f"f/{m['f_number']:g}"), ("object", f"speckled plate at {m['object_tilt_deg']}° to the "
                                                                 "image plane, 376 mm"),
               ("image noise", f"σ = {m['noise_grey']:g} grey read noise")]
+        # each camera is correlated on its own (workbench.experiments.depth_of_field.run.depth_of_field_dic): there
+        # is no stereo pair to describe
+        shift = f"{m['shift_px']:g} px" if m.get("shift_px") is not None else "a sub-pixel step"
+        matching = ("2-D matching (each camera alone, no stereo)",
+                    "per camera (tilted and untilted sensor): the static render's first sensor-noise draw → its second "
+                    f"(noise floor) and → the render of the plate moved {shift} in its own plane (error against the "
+                    "true pixel motion of each material point); no triangulation between the cameras")
         an = idics.analysis_rows(subset_px=m["subset_px"], step_px=m["step_px"], order=1, strain_window="—",
                                  vsg_px=None, strain_formulation="—",
                                  noise_floor=f"tilted {cams['scheimpflug']['noise_floor_px']['u']:.4f} px, untilted "
                                              f"{cams['conventional']['noise_floor_px']['u']:.4f} px (σu, static pair)",
-                                 strain_noise_floor="—")
+                                 strain_noise_floor="—", matching=matching)
         return idics.idics_section(hw, an, level=level)
     lens = m.get("lens", "pinhole")
     thin = m.get("thin_lens", {}) if stage == "bending" else {}

@@ -90,10 +90,20 @@ def hardware_rows(rig, *, lens: str, f_number: float | None, focal_length_mm: di
     ]
 
 
+#: The matching row of a stereo experiment (left and right images matched, points triangulated).
+STEREO_MATCHING = ("stereo matching", "left reference → right reference and → every deformed left/right image "
+                                      "(2-D DIC), triangulation with tilt and distortion")
+
+
 def analysis_rows(*, subset_px: int | None, step_px: int | None, order: int | None, strain_window: str,
                   vsg_px: float | str | None, strain_formulation: str, noise_floor: str, strain_noise_floor: str,
-                  lowpass_sigma_px: float = 0.0) -> list[tuple[str, str]]:
-    """Analysis rows of the guide for this project's instrument."""
+                  lowpass_sigma_px: float = 0.0,
+                  matching: tuple[str, str] = STEREO_MATCHING) -> list[tuple[str, str]]:
+    """Analysis rows of the guide for this project's instrument.
+
+    ``matching``: the (item, value) row saying which images are matched; the stereo experiments' by default, an
+    experiment that correlates each camera alone passes its own (it has no stereo matching to report).
+    """
     shape = {1: "first order (affine)", 2: "second order (quadratic)"}.get(order, "—")
     return [
         ("DIC software", f"{software_version()}, `measurement/` (numba)"),
@@ -103,8 +113,7 @@ def analysis_rows(*, subset_px: int | None, step_px: int | None, order: int | No
         ("subset shape function", shape),
         ("matching criterion", "ZNSSD, inverse-compositional Gauss–Newton; ZNCC seeds, reliability-guided"),
         ("interpolant", "biquintic B-spline"),
-        ("stereo matching", "left reference → right reference and → every deformed left/right image (2-D DIC), "
-                            "triangulation with tilt and distortion"),
+        matching,
         ("strain window", strain_window),
         ("virtual strain gauge size", "—" if vsg_px is None else f"{vsg_px} px"),
         ("strain formulation", strain_formulation),

@@ -96,6 +96,26 @@ def finished_records(cases_dir: Path, hashes) -> dict[str, dict]:
     return out
 
 
+def client_start_text(scheduler: str | None, workers: int) -> str:
+    """What :func:`start_client` is about to do, in words: a given scheduler is the user's, only connected to.
+
+    Parameters
+    ----------
+    scheduler : str or None
+        Address of a running Dask scheduler, or None for a new LocalCluster.
+    workers : int
+        Process workers of the LocalCluster (unused with ``scheduler``).
+
+    Returns
+    -------
+    str
+        ``"connecting to the Dask scheduler at ADDRESS"`` or ``"starting N local Dask worker processes"``.
+    """
+    if scheduler:
+        return f"connecting to the Dask scheduler at {scheduler}"
+    return f"starting {workers} local Dask worker processes"
+
+
 def start_client(scheduler: str | None, workers: int):
     """A ``distributed.Client``: on ``scheduler`` (an address) or on a new LocalCluster of ``workers`` processes."""
     import dask
@@ -157,8 +177,7 @@ def run_sweep(study: Study, out_dir: str | Path, *, store: DatasetStore | None =
         cluster = None
         log = (lambda text: print(text, flush=True)) if progress else (lambda text: None)
         if own:
-            where = f"the Dask scheduler {scheduler}" if scheduler else f"{workers} local Dask worker processes"
-            log(f"  starting {where} ...")
+            log(f"  {client_start_text(scheduler, workers)} ...")
             client, cluster = start_client(scheduler, workers)
         try:
             startup = prepare_workers(client, workers if own and not scheduler else None, log)

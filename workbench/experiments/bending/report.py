@@ -8,9 +8,11 @@ import numpy as np
 from labio.atomic import atomic_write_text
 from workbench.manifest import save_figure
 from workbench.experiments.calibration.run import render_text
+from workbench.reporting.goals import footprint_factor, scaled_note, um_goal_text
 from workbench.rigs import paper_values
 
-#: Goals at the 1800 N state (issue: displacement in um, strain as a fraction of the peak truth strain, mm).
+#: Goals at the 1800 N state at full resolution (issue: displacement in um, strain as a fraction of the peak truth
+#: strain, mm). A run's own goals, scaled to its image scale, come from :func:`goal_values` only.
 GOALS = {"load_N": 1800.0, "U_um": 0.1, "V_um": 0.1, "W_um": 0.3, "strain_percent_of_peak": 5.0,
          "neutral_axis_mm": 0.5}
 
@@ -85,7 +87,7 @@ def _fig8(path: Path, load: float, m: dict, vsg_px: int) -> None:
     plt.close(fig)
 
 
-def _curves(path: Path, rows: list[dict]) -> None:
+def _curves(path: Path, rows: list[dict], goals: dict) -> None:
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -95,13 +97,13 @@ def _curves(path: Path, rows: list[dict]) -> None:
     fig, axes = plt.subplots(1, 2, figsize=(10, 3.6))
     for i, name in enumerate("UVW"):
         axes[0].plot(P, [r["U_rmse_um"][i] for r in rows], "o-", label=f"{name} RMSE")
-    axes[0].axhline(GOALS["U_um"], color="C0", ls=":", label="goal U, V")
-    axes[0].axhline(GOALS["W_um"], color="C2", ls=":", label="goal W")
+    axes[0].axhline(goals["U_um"], color="C0", ls=":", label="goal U, V")
+    axes[0].axhline(goals["W_um"], color="C2", ls=":", label="goal W")
     axes[0].set_ylabel("displacement error vs truth (µm)")
     axes[1].plot(P, [r["strain_magnitude_rmse_vs_filtered_ue"] for r in rows], "o-", label="vs windowed truth")
     axes[1].plot(P, [r["strain_magnitude_rmse_vs_exact_ue"] for r in rows], "s-", label="vs exact truth")
-    axes[1].plot(P, [GOALS["strain_percent_of_peak"] / 100 * r["peak_truth_strain_ue"] for r in rows], ":",
-                 color="C3", label="goal: 5 % of peak")
+    axes[1].plot(P, [goals["strain_percent_of_peak"] / 100 * r["peak_truth_strain_ue"] for r in rows], ":",
+                 color="C3", label=f"goal: {goals['strain_percent_of_peak']:.3g} % of peak")
     axes[1].set_ylabel("strain magnitude RMSE (µε)")
     for ax in axes:
         ax.set_xlabel("load (N)")
@@ -119,21 +121,79 @@ def strain_goal(metrics: dict) -> float:
     return float(law["goal_percent_of_peak"]) if law else GOALS["strain_percent_of_peak"]
 
 
+def goal_values(metrics: dict) -> dict:
+    """The goals of this run at the goal load: the one source of every table that states them.
+
+    Displacement goals in µm scale with the pixel footprint (x ``1 / metrics["scale"]``, :mod:`workbench.reporting.
+    goals`); the strain goal is :func:`strain_goal`'s; the neutral-axis goal (mm on the specimen) does not scale.
+
+    Parameters
+    ----------
+    metrics : dict
+        The bending run's metrics (``scale``, and ``strain_goal_scale_law`` for a scaled run); a missing ``scale``
+        means full resolution.
+
+    Returns
+    -------
+    dict
+        ``U_um``, ``V_um``, ``W_um`` (µm), ``strain_percent_of_peak`` (%), ``neutral_axis_mm`` (mm).
+    """
+    factor = footprint_factor(metrics.get("scale", 1.0))
+    return {"U_um": GOALS["U_um"] * factor, "V_um": GOALS["V_um"] * factor, "W_um": GOALS["W_um"] * factor,
+            "strain_percent_of_peak": strain_goal(metrics), "neutral_axis_mm": GOALS["neutral_axis_mm"]}
+
+
+def goal_texts(metrics: dict) -> dict:
+    """Each goal of :func:`goal_values` as the bending report and the paper's summary both state it.
+
+    Parameters
+    ----------
+    metrics : dict
+        The bending run's metrics.
+
+    Returns
+    -------
+    dict
+        The same keys as :func:`goal_values`, each a text such as ``"≤ 0.40 µm (scaled ×4 with the pixel
+        footprint)"`` or ``"≤ 5 % of peak"``.
+    """
+    goals, scale = goal_values(metrics), metrics.get("scale", 1.0)
+    texts = {key: um_goal_text(goals[key], scale) for key in ("U_um", "V_um", "W_um")}
+    texts["strain_percent_of_peak"] = (f"≤ {goals['strain_percent_of_peak']:.3g} % of peak"
+                                       + (" (scale law)" if metrics.get("strain_goal_scale_law") else ""))
+    texts["neutral_axis_mm"] = f"≤ {goals['neutral_axis_mm']:g} mm"
+    return texts
+
+
 def goal_check(metrics: dict) -> dict:
-    """Pass/fail of every goal at the goal load (None where the state is missing)."""
+    """Pass/fail of every goal of :func:`goal_values` at the goal load.
+
+    Parameters
+    ----------
+    metrics : dict
+        The bending run's metrics (``states``, ``scale``, ...).
+
+    Returns
+    -------
+    dict
+        ``{"state_found": False}`` when the goal load was not measured; else ``state_found`` and, per goal,
+        ``(measured value, met)``.
+    """
     row = next((r for r in metrics["states"] if abs(r["load_N"] - GOALS["load_N"]) < 1e-6 and "error" not in r), None)
     if row is None:
         return {"state_found": False}
+    goals = goal_values(metrics)
     na = row["neutral_axis_mm"]
     na_err = None if na["measured"] is None or na["truth"] is None else abs(na["measured"] - na["truth"])
     top, bottom = row["area_change_top_bottom"]["measured"]
     return {"state_found": True,
-            "U_um": (row["U_rmse_um"][0], row["U_rmse_um"][0] <= GOALS["U_um"]),
-            "V_um": (row["U_rmse_um"][1], row["U_rmse_um"][1] <= GOALS["V_um"]),
-            "W_um": (row["U_rmse_um"][2], row["U_rmse_um"][2] <= GOALS["W_um"]),
+            "U_um": (row["U_rmse_um"][0], row["U_rmse_um"][0] <= goals["U_um"]),
+            "V_um": (row["U_rmse_um"][1], row["U_rmse_um"][1] <= goals["V_um"]),
+            "W_um": (row["U_rmse_um"][2], row["U_rmse_um"][2] <= goals["W_um"]),
             "strain_percent_of_peak": (row["strain_rmse_vs_filtered_percent_of_peak"],
-                                       row["strain_rmse_vs_filtered_percent_of_peak"] <= strain_goal(metrics)),
-            "neutral_axis_mm": (na_err, na_err is not None and na_err <= GOALS["neutral_axis_mm"]),
+                                       row["strain_rmse_vs_filtered_percent_of_peak"]
+                                       <= goals["strain_percent_of_peak"]),
+            "neutral_axis_mm": (na_err, na_err is not None and na_err <= goals["neutral_axis_mm"]),
             "area_change_top_compressed_bottom_stretched": ((top, bottom), bool(top < 0 < bottom))}
 
 
@@ -145,9 +205,10 @@ def write_bending_report(out_dir: Path, metrics: dict, maps: dict) -> None:
         _fig7(out_dir / f"fig7_{load:g}N.png", load, m)
         _fig8(out_dir / f"fig8_{load:g}N.png", load, m, metrics["vsg_px"])
         figures.append(load)
-    _curves(out_dir / "errors_vs_load.png", metrics["states"])
+    _curves(out_dir / "errors_vs_load.png", metrics["states"], goal_values(metrics))
     goals = goal_check(metrics)
     metrics["goals"] = goals
+    text = goal_texts(metrics)
     p = paper_values()["three_point_bending_test"]
     beam = metrics["beam"]
     lines = ["# Three-point bending (paper §4.4, Figs 7-8) on rendered images, scored against an FE truth", "",
@@ -166,18 +227,21 @@ def write_bending_report(out_dir: Path, metrics: dict, maps: dict) -> None:
     if goals.get("state_found"):
         g = goals
         lines += [f"## Goals at {GOALS['load_N']:g} N", "", "| figure | goal | measured | met |", "|---|---|---|---|",
-                  f"| U RMSE vs truth | ≤ {GOALS['U_um']} µm | {g['U_um'][0]:.3f} µm | {'yes' if g['U_um'][1] else 'NO'} |",
-                  f"| V RMSE vs truth | ≤ {GOALS['V_um']} µm | {g['V_um'][0]:.3f} µm | {'yes' if g['V_um'][1] else 'NO'} |",
-                  f"| W RMSE vs truth | ≤ {GOALS['W_um']} µm | {g['W_um'][0]:.3f} µm | {'yes' if g['W_um'][1] else 'NO'} |",
-                  f"| strain magnitude RMSE vs the windowed truth | ≤ {strain_goal(metrics):.3g} % of peak"
-                  + (" (scale law)" if metrics.get("strain_goal_scale_law") else "") + " | "
+                  f"| U RMSE vs truth | {text['U_um']} | {g['U_um'][0]:.3f} µm | {'yes' if g['U_um'][1] else 'NO'} |",
+                  f"| V RMSE vs truth | {text['V_um']} | {g['V_um'][0]:.3f} µm | {'yes' if g['V_um'][1] else 'NO'} |",
+                  f"| W RMSE vs truth | {text['W_um']} | {g['W_um'][0]:.3f} µm | {'yes' if g['W_um'][1] else 'NO'} |",
+                  f"| strain magnitude RMSE vs the windowed truth | {text['strain_percent_of_peak']} | "
                   f"{g['strain_percent_of_peak'][0]:.2f} % | {'yes' if g['strain_percent_of_peak'][1] else 'NO'} |",
-                  f"| neutral axis, measured vs truth | ≤ {GOALS['neutral_axis_mm']} mm | "
+                  f"| neutral axis, measured vs truth | {text['neutral_axis_mm']} | "
                   + ("—" if g['neutral_axis_mm'][0] is None else f"{g['neutral_axis_mm'][0]:.3f} mm")
                   + f" | {'yes' if g['neutral_axis_mm'][1] else 'NO'} |",
                   f"| area change: top compressed, bottom stretched | signs | top {1e6 * g['area_change_top_compressed_bottom_stretched'][0][0]:+.1f} µε, "
                   f"bottom {1e6 * g['area_change_top_compressed_bottom_stretched'][0][1]:+.1f} µε | "
                   f"{'yes' if g['area_change_top_compressed_bottom_stretched'][1] else 'NO'} |", ""]
+        if scaled_note(metrics.get("scale", 1.0)):
+            lines += [f"The displacement goals are the full-resolution ones ({GOALS['U_um']:g} µm for U and V, "
+                      f"{GOALS['W_um']:g} µm for W) {scaled_note(metrics['scale'])} at scale {metrics['scale']:g}: "
+                      "a pixel covers that many times more of the specimen.", ""]
         law = metrics.get("strain_goal_scale_law")
         if law:
             lines += [f"The strain goal at scale {metrics['scale']:g} follows from the full-resolution one by a scale "
@@ -185,8 +249,7 @@ def write_bending_report(out_dir: Path, metrics: dict, maps: dict) -> None:
                       f"{law['peak_ue']:.1f} µε at this run's points ({law['load_N']:g} N): "
                       f"{strain_goal(metrics):.3g} % of this run's peak, i.e. the same "
                       f"{GOALS['strain_percent_of_peak'] / 100 * law['peak_full_resolution_ue']:.1f} µε of error allowed "
-                      "as at full resolution. The displacement goals in µm are the full-resolution ones here; the "
-                      "paper's summary scales them with the pixel footprint (1 / scale).", ""]
+                      "as at full resolution.", ""]
     fe = metrics.get("fe_verification")
     if fe:
         t, f, ref = fe["timoshenko"], fe["fe"], fe["refinement"]

@@ -243,11 +243,12 @@ def _render_text(metrics: dict) -> str:
 
 def reproduce_depth_of_field(out_dir, *, scale: float = 1.0, object_tilt_deg: float = 38.0, f_number: float = 4.0,
                              spp: int = 64, seed: int = 0, noise_grey: float = 1.0,
-                             mc_target_grey: float | None = None) -> dict:
+                             mc_target_grey: float | None = None, shift_px: float = 0.4) -> dict:
     """Write ``metrics.json``, ``report.md``, ``side_by_side.png`` and ``dic_maps.png`` (tilted vs untilted).
 
     ``mc_target_grey``: renders without Monte Carlo where in focus, adaptive at that Monte-Carlo noise elsewhere
-    (:func:`scenes.adaptive.render_views_auto`) instead of ``spp``."""
+    (:func:`scenes.adaptive.render_views_auto`) instead of ``spp``. ``shift_px``: the in-plane move of the plate
+    between the two renders, pixels at its centre (recorded in the metrics for the report)."""
     import json
     from pathlib import Path
 
@@ -265,7 +266,7 @@ def reproduce_depth_of_field(out_dir, *, scale: float = 1.0, object_tilt_deg: fl
     step = max(8, int(round(16 * scale)))
     scene, images, fig = run_depth_of_field_study(scale=scale, object_tilt_deg=object_tilt_deg, f_number=f_number,
                                                   spp=spp, seed=seed, noise_grey=noise_grey, subset_size=subset,
-                                                  step=step, mc_target_grey=mc_target_grey)
+                                                  step=step, mc_target_grey=mc_target_grey, shift_px=shift_px)
     paper = paper_values()["speckle_quality"]
     st, cv = images["static"]["scheimpflug"], images["static"]["conventional"]
     for name, img in (("scheimpflug", st), ("conventional", cv)):
@@ -292,7 +293,7 @@ def reproduce_depth_of_field(out_dir, *, scale: float = 1.0, object_tilt_deg: fl
     from workbench.experiments.calibration.run import render_content
     metrics = {"object_tilt_deg": object_tilt_deg, "f_number": f_number, "scale": scale,
                **render_content(spp, mc_target_grey),
-               "noise_grey": noise_grey, "subset_px": subset, "step_px": step,
+               "noise_grey": noise_grey, "subset_px": subset, "step_px": step, "shift_px": shift_px,
                "paper_mig_scheimpflug": paper["MIG_scheimpflug"], "paper_mig_conventional": paper["MIG_conventional"],
                "cameras": {name: {k: v for k, v in d.items() if k != "maps"} for name, d in fig.items()}}
     metrics["mig_ratio"] = fig["scheimpflug"]["mig"] / fig["conventional"]["mig"]
@@ -306,7 +307,7 @@ def reproduce_depth_of_field(out_dir, *, scale: float = 1.0, object_tilt_deg: fl
         f"({s['sensor_tilt_deg']:.2f}° from the thin-lens focus condition) keeps the whole plate in focus; the "
         "untilted one only its middle. Over the central 80 % of the image: MIG, the blur circle of the plate point "
         "each POI sees, the DIC noise floor of a static pair (two sensor-noise draws, σ = "
-        f"{noise_grey} grey, subset {subset} px, first order) and the error of a {0.4:g} px in-plane move of the "
+        f"{noise_grey} grey, subset {subset} px, first order) and the error of a {shift_px:g} px in-plane move of the "
         "plate against the true pixel motion of each material point.", "",
         "| | Scheimpflug (tilted) | untilted |", "|---|---|---|",
         row("MIG", s["mig"], c["mig"], "{:.2f}"),

@@ -228,10 +228,14 @@ def goal_rows(out_dir: Path, settings: PaperSettings) -> list[dict]:
 
     Goals in µm scale with the pixel footprint (1 / scale): a quarter-scale run sees 4x larger pixels. The strain
     goal (% of the sampled peak) follows its own scale law (:func:`workbench.experiments.bending.run.
-    strain_goal_scale_law`).
+    strain_goal_scale_law`). The rigid-motion and bending goals, their texts and pass/fail come from the
+    experiments' own goal functions, the ones their reports use, so the summary and the experiment tables agree.
     """
     from workbench.experiments.bending.report import GOALS as BENDING_GOALS
-    from workbench.experiments.bending.report import strain_goal
+    from workbench.experiments.bending.report import goal_check as bending_goal_check
+    from workbench.experiments.bending.report import goal_texts as bending_goal_texts
+    from workbench.experiments.rigid_motion.run import state_goal
+    from workbench.reporting.goals import scaled_note, um_goal_text
     from workbench.rigs import paper_values
 
     p = paper_values()
@@ -255,47 +259,49 @@ def goal_rows(out_dir: Path, settings: PaperSettings) -> list[dict]:
         for key, paper_mm, name in (("rmse_um", proto["plane_fit_rmse_mm"], "plane-fit RMSE (µm)"),
                                     ("max_abs_um", proto["plane_fit_max_deviation_mm"], "plane-fit max (µm)")):
             goal = 1e3 * paper_mm * per_um
-            rows.append(_goal("calibration", f"Fig 5 {name}", f"{1e3 * paper_mm:.1f}", f"≤ {goal:.1f}",
-                              f"{pf[key]:.2f}", pf[key] <= goal))
+            rows.append(_goal("calibration", f"Fig 5 {name}", f"{1e3 * paper_mm:.1f}",
+                              um_goal_text(goal, scale, digits=1), f"{pf[key]:.2f}", pf[key] <= goal))
     m = _metrics(out_dir, "rigid_motion")
     if m:
         states = [s for s in m["states"] if "error" not in s and s.get("paper_mean_um") is not None]
         skipped = [s for s in m["states"] if "error" in s]
-        ok = [abs(s["mean_error_um"]) <= s["paper_mean_um"] / 10 * per_um and s["std_um"] <= s["paper_std_um"] / 3
-              * per_um for s in states]
+        # the run's scale, as the rigid-motion report itself states the goals (the same as settings.scale)
+        rm_scale = m.get("scale", scale)
+        ok = [state_goal(s, rm_scale)[2] for s in states]
         worst = max(states, key=lambda s: abs(s["mean_error_um"]) / s["paper_mean_um"]) if states else None
-        rows.append(_goal("rigid motion", "states within paper/10 (mean) and paper/3 (std) of D error", "—",
+        note = scaled_note(rm_scale)
+        rows.append(_goal("rigid motion", "states within paper/10 (mean) and paper/3 (std) of D error"
+                          + (f", {note}" if note else ""), "—",
                           f"all {len(states) + len(skipped)}", f"{sum(ok)}", bool(states) and all(ok) and not skipped))
         if worst is not None:
+            goal_mean, _, _ = state_goal(worst, rm_scale)
             rows.append(_goal("rigid motion", f"mean error of D at {worst['imposed_mm']:g} mm (µm), worst state",
-                              f"{worst['paper_mean_um']:.1f}", f"abs ≤ {worst['paper_mean_um'] / 10 * per_um:.2f}",
-                              f"{worst['mean_error_um']:+.3f}",
-                              abs(worst["mean_error_um"]) <= worst["paper_mean_um"] / 10 * per_um))
+                              f"{worst['paper_mean_um']:.1f}", um_goal_text(goal_mean, rm_scale, "abs ≤"),
+                              f"{worst['mean_error_um']:+.3f}", abs(worst["mean_error_um"]) <= goal_mean))
         ten = next((s for s in states if s["imposed_mm"] == 10), None)
         if ten is not None:
+            _, goal_std, _ = state_goal(ten, rm_scale)
             rows.append(_goal("rigid motion", "std of D at 10 mm (µm)", f"{ten['paper_std_um']:.1f}",
-                              f"≤ {ten['paper_std_um'] / 3 * per_um:.2f}", f"{ten['std_um']:.3f}",
-                              ten["std_um"] <= ten["paper_std_um"] / 3 * per_um))
+                              um_goal_text(goal_std, rm_scale), f"{ten['std_um']:.3f}", ten["std_um"] <= goal_std))
     m = _metrics(out_dir, "bending")
     if m:
-        g = m.get("goals", {})
+        # recomputed from the states with the bending report's own goal functions (not read from m["goals"]), so
+        # the summary and the bending table state the same goal and verdict
+        g = bending_goal_check(m)
         if not g.get("state_found"):
             rows.append(_goal("bending", f"state at {BENDING_GOALS['load_N']:g} N measured", "—", "yes", "no", False))
         else:
+            text = bending_goal_texts(m)
             for key, name in (("U_um", "U"), ("V_um", "V"), ("W_um", "W")):
-                value = g[key][0]
-                goal = BENDING_GOALS[key] * per_um
+                value, met = g[key]
                 rows.append(_goal("bending", f"{name} RMSE vs FE truth at {BENDING_GOALS['load_N']:g} N (µm)", "—",
-                                  f"≤ {goal:.2f}", f"{value:.3f}", value <= goal))
-            v = g["strain_percent_of_peak"][0]
-            goal = strain_goal(m)
+                                  text[key], f"{value:.3f}", met))
+            value, met = g["strain_percent_of_peak"]
             rows.append(_goal("bending", "strain magnitude RMSE vs windowed truth (% of peak)", "—",
-                              f"≤ {goal:.3g}" + (" (scale law)" if m.get("strain_goal_scale_law") else ""),
-                              f"{v:.2f}", v <= goal))
-            na = g["neutral_axis_mm"][0]
-            rows.append(_goal("bending", "neutral axis position error (mm)", "—",
-                              f"≤ {BENDING_GOALS['neutral_axis_mm']:g}", "—" if na is None else f"{na:.3f}",
-                              na is not None and na <= BENDING_GOALS["neutral_axis_mm"]))
+                              text["strain_percent_of_peak"], f"{value:.2f}", met))
+            na, met = g["neutral_axis_mm"]
+            rows.append(_goal("bending", "neutral axis position error (mm)", "—", text["neutral_axis_mm"],
+                              "—" if na is None else f"{na:.3f}", met))
             top, bottom = g["area_change_top_compressed_bottom_stretched"][0]
             rows.append(_goal("bending", "Fig 8: area change, top compressed / bottom stretched", "top < 0 < bottom",
                               "top < 0 < bottom", f"{top:+.2e} / {bottom:+.2e}", top < 0 < bottom))

@@ -31,6 +31,7 @@ from workbench.experiments.rigid_motion.scenes import (known_fraction_range, loa
 from workbench.manifest import save_figure
 from workbench.store import dataset_record, stored_render
 from workbench.points_with_truth import Alignment, write_alignment, write_points_readme, write_points_with_truth
+from workbench.reporting.goals import footprint_factor, scaled_note
 from workbench.rigs import get_rig, paper_values
 
 
@@ -42,6 +43,33 @@ def _paper_goal(imposed_mm: np.ndarray) -> dict[str, np.ndarray]:
     mean = np.where(d >= 1.0, np.interp(d, [1.0, 10.0], [p["mean_error_um_at_1mm"], p["mean_error_um_at_10mm"]]), np.nan)
     std = np.where(d >= 1.0, np.interp(d, [1.0, 10.0], [p["std_um_at_1mm"], p["std_um_at_10mm"]]), np.nan)
     return {"paper_mean_um": mean, "paper_std_um": std}
+
+
+def state_goal(row: dict, scale: float) -> tuple[float | None, float | None, bool | None]:
+    """The goal of one measured state and whether it is met: the one rule the report and the paper's summary use.
+
+    The paper's mean error of D over 10 and its standard deviation over 3, both scaled with the pixel footprint
+    (x ``1 / scale``, :mod:`workbench.reporting.goals`): a quarter-scale run sees pixels 4 times larger.
+
+    Parameters
+    ----------
+    row : dict
+        A measured state: ``paper_mean_um``, ``paper_std_um`` (None below 1 mm, where the paper has no figure),
+        ``mean_error_um``, ``std_um``.
+    scale : float
+        Image scale of the run.
+
+    Returns
+    -------
+    tuple
+        ``(goal on |mean error| in µm, goal on the std in µm, met)``; ``(None, None, None)`` without a paper figure.
+    """
+    pm, ps = row.get("paper_mean_um"), row.get("paper_std_um")
+    if pm is None or ps is None or not (np.isfinite(pm) and np.isfinite(ps)):
+        return None, None, None
+    factor = footprint_factor(scale)
+    goal_mean, goal_std = float(pm) / 10 * factor, float(ps) / 3 * factor
+    return goal_mean, goal_std, bool(abs(row["mean_error_um"]) <= goal_mean and row["std_um"] <= goal_std)
 
 
 def finite_or_none(value: float) -> float | None:
@@ -211,10 +239,9 @@ def reproduce_rigid_motion(out_dir: str | Path, *, scale: float = 1.0, calib: st
     imposed = np.array([r["imposed_mm"] for r in measured])
     goals = _paper_goal(imposed)
     for r, pm, ps in zip(measured, goals["paper_mean_um"], goals["paper_std_um"]):
-        r.update(paper_mean_um=finite_or_none(pm), paper_std_um=finite_or_none(ps),
-                 goal_mean_um=finite_or_none(pm / 10), goal_std_um=finite_or_none(ps / 3),
-                 meets_goal=bool(abs(r["mean_error_um"]) <= pm / 10 and r["std_um"] <= ps / 3)
-                 if np.isfinite(pm) else None)
+        r.update(paper_mean_um=finite_or_none(pm), paper_std_um=finite_or_none(ps))
+        goal_mean, goal_std, met = state_goal(r, scale)
+        r.update(goal_mean_um=goal_mean, goal_std_um=goal_std, meets_goal=met)
     metrics = {"calibration": rig_text, "images": str(images),
                "images_dataset": dataset_record("rigid-motion", content, images), "lens": lens, "scale": scale,
                **render_content(spp, mc_target_grey), "render_mc": mc_summary(truth.info["render"].get("mc", [])),
@@ -230,14 +257,14 @@ def reproduce_rigid_motion(out_dir: str | Path, *, scale: float = 1.0, calib: st
                                    "in_plane_um": float(1e3 * np.median(sigma_px) * footprint_mm)},
                "states": rows}
     atomic_write_text(out_dir / "metrics.json", json.dumps(metrics, indent=2))
-    _plot(out_dir / "fig6.png", measured, rig_text)
-    _report(out_dir / "report.md", metrics)
+    _plot(out_dir / "fig6.png", measured, rig_text, scale)
+    write_rigid_motion_report(out_dir / "report.md", metrics)
     from workbench.reporting.experiment_idics import append_idics
     append_idics(out_dir, "rigid_motion", metrics)
     return metrics
 
 
-def _plot(path: Path, rows: list[dict], title: str) -> None:
+def _plot(path: Path, rows: list[dict], title: str, scale: float = 1.0) -> None:
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -250,11 +277,12 @@ def _plot(path: Path, rows: list[dict], title: str) -> None:
         return [np.nan if r[key] is None else sign * r[key] for r in rows]
 
     axes[0].plot(k, series("paper_mean_um"), "s--", color="0.5", label="paper (1 and 10 mm, linear between)")
-    axes[0].plot(k, series("goal_mean_um"), ":", color="C3", label="goal: paper / 10")
+    note = scaled_note(scale)
+    axes[0].plot(k, series("goal_mean_um"), ":", color="C3", label="goal: paper / 10" + (f", {note}" if note else ""))
     axes[0].plot(k, series("goal_mean_um", -1.0), ":", color="C3")
     axes[1].plot(k, [r["std_um"] for r in rows], "o-", label="ours: std of D")
     axes[1].plot(k, series("paper_std_um"), "s--", color="0.5", label="paper")
-    axes[1].plot(k, series("goal_std_um"), ":", color="C3", label="goal: paper / 3")
+    axes[1].plot(k, series("goal_std_um"), ":", color="C3", label="goal: paper / 3" + (f", {note}" if note else ""))
     for ax, label in zip(axes, ("mean error of D (µm)", "standard deviation of D (µm)")):
         ax.set_xticks(k)
         ax.set_xticklabels([f"{v:g}" for v in imposed], fontsize=7)
@@ -268,8 +296,21 @@ def _plot(path: Path, rows: list[dict], title: str) -> None:
     plt.close(fig)
 
 
-def _report(path: Path, m: dict) -> None:
+def write_rigid_motion_report(path: Path, m: dict) -> None:
+    """Write the rigid-motion ``report.md`` from the run's metrics.
+
+    Each state's goal and verdict are recomputed with :func:`state_goal` at ``m["scale"]``, the rule the paper's
+    summary uses, so both state the same goal.
+
+    Parameters
+    ----------
+    path : Path
+        The report file to write (atomically).
+    m : dict
+        The run's metrics (as in ``metrics.json``).
+    """
     e = m["reference_3d_error_um"]
+    note = scaled_note(m["scale"])
     seconds = [r["seconds"] for r in m["states"] if "error" not in r]
     lines = ["# Rigid-motion test (paper §4.3, Fig 6) on rendered images", "",
              f"Instrument: {m['calibration']}; lens {m['lens']}; scale {m['scale']}; subset {m['subset_px']} px, "
@@ -284,14 +325,16 @@ def _report(path: Path, m: dict) -> None:
              f"Stereo processing per state (two matches + triangulation): median "
              f"{np.median(seconds) if seconds else float('nan'):.1f} s for {m['points']} points.", "",
              "![fig 6](fig6.png)", "",
-             "| state | imposed (mm) | points | mean error of D (µm) | std (µm) | goal mean / std (µm) | paper mean / std (µm) | met |",
+             "| state | imposed (mm) | points | mean error of D (µm) | std (µm) | goal mean / std (µm"
+             + (f", {note}" if note else "") + ") | paper mean / std (µm) | met |",
              "|---|---|---|---|---|---|---|---|"]
     for r in m["states"]:
         if "error" in r:
             lines.append(f"| {r['state']} | {r['imposed_mm']:g} | skipped: {r['error']} | — | — | — | — | NO |")
             continue
-        met = "—" if r["meets_goal"] is None else ("yes" if r["meets_goal"] else "NO")
-        goal = "—" if r["goal_mean_um"] is None else f"{r['goal_mean_um']:.2f} / {r['goal_std_um']:.2f}"
+        goal_mean, goal_std, meets = state_goal(r, m["scale"])
+        met = "—" if meets is None else ("yes" if meets else "NO")
+        goal = "—" if goal_mean is None else f"{goal_mean:.2f} / {goal_std:.2f}"
         paper = "—" if r["paper_mean_um"] is None else f"{r['paper_mean_um']:.1f} / {r['paper_std_um']:.1f}"
         lines.append(f"| {r['state']} | {r['imposed_mm']:g} | {r['points']}/{r['points_total']} | {r['mean_error_um']:+.3f} | "
                      f"{r['std_um']:.3f} | {goal} | {paper} | {met} |")
