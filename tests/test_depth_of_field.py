@@ -85,3 +85,21 @@ def test_the_idics_analysis_table_describes_one_camera_2d_dic_not_stereo_matchin
                    "static render's first sensor-noise draw → its second (noise floor) and → the render of the plate "
                    "moved 0.4 px in its own plane (error against the true pixel motion of each material point); no "
                    "triangulation between the cameras |")
+
+
+def test_the_readme_command_runs_and_every_reproduce_verb_takes_out(tmp_path, capsys, monkeypatch):
+    """`workbench reproduce depth-of-field ... --out DIR`, as the README gives it, was refused ("unrecognized
+    arguments: --out": the option was lost when the CLI was split into modules); every reproduce verb writes a
+    folder, so every one must take --out."""
+    import argparse
+
+    from workbench.cli import main, parser
+
+    monkeypatch.setenv("WORKBENCH_STORE", str(tmp_path / "store"))
+    out = tmp_path / "dof"
+    assert main(["reproduce", "depth-of-field", "--scale", "0.1", "--spp", "4", "--out", str(out)]) == 0
+    assert (out / "report.md").is_file() and "MIG ratio" in capsys.readouterr().out
+    reproduce = next(a for a in parser()._actions if isinstance(a, argparse._SubParsersAction)).choices["reproduce"]
+    verbs = next(a for a in reproduce._actions if isinstance(a, argparse._SubParsersAction)).choices
+    missing = [name for name, sub in verbs.items() if "--out" not in sub._option_string_actions]
+    assert not missing, f"reproduce verbs without --out: {missing}"

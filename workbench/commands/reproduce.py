@@ -129,6 +129,7 @@ def add_parser(sub) -> None:
     dof.add_argument("--f-number", type=positive_float_arg, default=4.0)
     dof.add_argument("--spp", type=positive_int_arg, default=64)
     dof.add_argument("--seed", type=seed_arg, default=0)
+    dof.add_argument("--out", type=Path, required=True)
 
 
 def reproduce_catalog_command(args) -> int:
