@@ -37,6 +37,8 @@ rev=""
 dest="$here/data/twin"
 list=0
 fail() { echo "fetch_twin_data: $*" >&2; exit 1; }
+# shellcheck source=fetch_common.sh
+. "$here/scripts/fetch_common.sh"
 while [ $# -gt 0 ]; do
     case "$1" in
         --mirror) mirror="$2"; shift 2 ;;
@@ -111,19 +113,7 @@ else
     for pair in "${pairs[@]}"; do
         f="${pair%%|*}"; out="$dest/${pair##*|}"
         [ -s "$out" ] && continue
-        mkdir -p "$(dirname "$out")"
-        url="$base/$(printf '%s' "$f" | sed 's/ /%20/g')"
-        if ! curl -fsSL --retry 3 -o "$out.part" "$url"; then
-            rm -f "$out.part"
-            fail "could not fetch $f from $url (curl failed, see above); $out not written"
-        fi
-        # none of these files is empty: an empty one is a broken mirror, not data
-        if [ ! -s "$out.part" ]; then
-            rm -f "$out.part"
-            fail "could not fetch $f from $url: it is empty; $out not written"
-        fi
-        mv "$out.part" "$out"
-        echo "[fetch_twin_data] $f"
+        fetch_file "$f" "$base/$(printf '%s' "$f" | sed 's/ /%20/g')" "$out" fetch_twin_data
     done
 fi
 cat > "$dest/SOURCE.txt" <<EOF
