@@ -23,8 +23,17 @@ import numpy as np
 
 PAINT_KINDS = ("speckle", "checker")
 METHODS = ("sprayed", "wrapped")
-#: Largest paint texture (texels), as for the built-in beam: ~320 MB of float32.
-MAX_TEXELS = 80_000_000
+#: Largest paint texture (texels, as looked up by the renderers): 1.6 GB of float32 (a full-scale cylinder wrapped
+#: whole at 5 px speckles needs 370 M).
+MAX_TEXELS = 400_000_000
+#: Texels per speckle diameter in the texture the renderers look up. A speckle is generated at ``texel_mm``
+#: (default speckle / 5) and is, by definition, the band-limited interpolant of those samples; the renderers
+#: interpolate a texture bilinearly, which at 5 texels per speckle (about one texel per pixel at the default
+#: 5 px speckle) moves the rendered pattern by up to 0.005 px depending on where a pixel falls on the texels: a
+#: sub-pixel motion was not rendered exactly (issue 38): 0.010 px RMS against the paint itself. At 20 texels per
+#: speckle the texture is the paint's Fourier interpolant sampled 4 times finer and that error is 0.0006 px at every
+#: phase (``workbench.experiments.subpixel``; 15 texels: 0.0010 px, 25: 0.0004 px).
+LOOKUP_TEXELS_PER_SPECKLE = 20.0
 
 
 @dataclass(frozen=True)
@@ -36,7 +45,8 @@ class Paint:
     kind : "speckle" or "checker"
     method : "sprayed" or "wrapped"
     speckle_mm : nominal speckle diameter
-    texel_mm : texture resolution (default: speckle / 5)
+    texel_mm : the pattern's sample spacing (default: speckle / 5); the paint is the band-limited interpolant of
+        those samples, looked up by the renderers at :attr:`lookup_factor` times finer
     density, contrast, mean : see :func:`scenes.speckle.speckle_pattern`
     checker_mm : checker square side
     direction : paint travel direction (into the surface); default +z (the specimen frame's cameras look along +z)
@@ -94,6 +104,14 @@ class Paint:
             return float(self.checker_mm)
         return float(self.texel_mm) if self.texel_mm is not None else float(self.speckle_mm) / 5.0
 
+    @property
+    def lookup_factor(self) -> int:
+        """Texels of the renderers' texture per pattern texel, along each axis (:data:`LOOKUP_TEXELS_PER_SPECKLE`;
+        1 for a checker, whose texels are its squares)."""
+        if self.kind == "checker":
+            return 1
+        return max(1, int(np.ceil(LOOKUP_TEXELS_PER_SPECKLE * self.texel / self.speckle_mm - 1e-9)))
+
     def to_dict(self) -> dict:
         return {k: (list(v) if isinstance(v, tuple) else v) for k, v in asdict(self).items()}
 
@@ -136,7 +154,7 @@ class PaintLayout:
     def summary(self) -> dict:
         s = self.stretch[self.painted]
         return {"painted_triangles": int(self.painted.sum()), "triangles": int(len(self.painted)),
-                "texture_shape": list(self.shape),
+                "texture_shape": list(self.shape),     # pattern texels (the renderers' texture: x lookup_factor)
                 "stretch_max": float(np.max(s)) if len(s) else None,
                 "stretch_mean": float(np.mean(s)) if len(s) else None,
                 "stretch_over_1_5_fraction": float(np.mean(s > 1.5)) if len(s) else None}
@@ -236,16 +254,29 @@ def layout(paint: Paint, vertices_mm: np.ndarray, triangles: np.ndarray, source:
         lo, hi = lo - 2 * texel, hi + 2 * texel
     cols, rows = (int(np.ceil((hi[i] - lo[i]) / texel - 1e-9)) for i in range(2))
     cols, rows = max(cols, 1), max(rows, 1)
-    if rows * cols > MAX_TEXELS:
-        raise ValueError(f"{source}: a {cols} x {rows} texel paint texture ({texel:g} mm texels over "
-                         f"{hi[0] - lo[0]:.1f} x {hi[1] - lo[1]:.1f} mm) is too large; give a larger texel_mm or "
-                         f"paint less (max_angle_deg)")
+    m = paint.lookup_factor
+    if rows * cols * m * m > MAX_TEXELS:
+        raise ValueError(f"{source}: a {cols * m} x {rows * m} texel paint texture ({texel / m:g} mm texels over "
+                         f"{hi[0] - lo[0]:.1f} x {hi[1] - lo[1]:.1f} mm, {LOOKUP_TEXELS_PER_SPECKLE:g} per speckle) is "
+                         f"too large; give a larger speckle_mm or paint less (max_angle_deg)")
     return PaintLayout(uv, painted, lo, (rows, cols), stretch, np.array([cols, rows]) * texel, radius)
 
 
-def texture(paint: Paint, shape: tuple, origin_mm) -> np.ndarray:
-    """The paint's texture (rows, cols) float32: row 0 at ``v = origin_v``, column 0 at ``u = origin_u``."""
+def pattern(paint: Paint, shape: tuple) -> np.ndarray:
+    """The speckle's samples (rows, cols) float32 at the paint's ``texel`` (the paint is their band-limited
+    interpolant, periodic over ``shape``)."""
     from scenes.speckle import speckle_pattern
+
+    return speckle_pattern(tuple(shape), paint.speckle_mm / paint.texel, density=paint.density,
+                           contrast=paint.contrast, mean=paint.mean, seed=paint.seed)
+
+
+def texture(paint: Paint, shape: tuple, origin_mm) -> np.ndarray:
+    """The texture the renderers look up, float32, covering the layout's ``shape`` (rows, cols) of pattern texels
+    from ``origin_mm`` (row 0 at ``v = origin_v``, column 0 at ``u = origin_u``): a checker's squares, or the
+    speckle's band-limited interpolant at :attr:`Paint.lookup_factor` texels per pattern texel (shape
+    ``(rows * m, cols * m)``)."""
+    from scenes.speckle import fourier_upsample
 
     rows, cols = shape
     if paint.kind == "checker":
@@ -253,5 +284,4 @@ def texture(paint: Paint, shape: tuple, origin_mm) -> np.ndarray:
         r, c = np.meshgrid(np.arange(rows) + i0, np.arange(cols) + j0, indexing="ij")
         return np.where((r + c) % 2 == 0, paint.mean + 0.5 * paint.contrast, paint.mean - 0.5 * paint.contrast
                         ).astype(np.float32)
-    return speckle_pattern((rows, cols), paint.speckle_mm / paint.texel, density=paint.density,
-                           contrast=paint.contrast, mean=paint.mean, seed=paint.seed)
+    return np.clip(fourier_upsample(pattern(paint, shape), paint.lookup_factor), 0.0, 1.0)

@@ -151,6 +151,52 @@ def gaussian_lowpass(image: np.ndarray, sigma_texels: float) -> np.ndarray:
     return scipy.fft.irfft2(spectrum, s=(rows, cols), workers=-1)
 
 
+def fourier_upsample(pattern: np.ndarray, factor: int) -> np.ndarray:
+    """The band-limited interpolant of a periodic pattern, sampled ``factor`` times finer.
+
+    A periodic pattern of ``N`` samples *is* a trigonometric polynomial (its DFT); this evaluates that
+    polynomial, its Nyquist terms left out (they have no unique real interpolant; a speckle's low-pass leaves
+    them a few per cent of the peak), at the centres of the finer texels that cover the same period:
+    fine texel ``k`` has its centre at coarse coordinate ``(k + 0.5) / factor - 0.5``, so both textures span the
+    same ``[0, 1]`` of texture coordinates. A renderer that interpolates the fine texture bilinearly then
+    differs from the band-limited paint by ``1 / factor**2`` of what it would on the coarse one.
+
+    Parameters
+    ----------
+    pattern : ndarray, shape (rows, cols)
+        Periodic samples (texel centres).
+    factor : int
+        Texels per coarse texel along each axis, >= 1 (1 returns the pattern as float32).
+
+    Returns
+    -------
+    ndarray of float32, shape (rows * factor, cols * factor)
+    """
+    pattern = np.asarray(pattern)
+    if pattern.ndim != 2 or min(pattern.shape) < 1:
+        raise ValueError(f"pattern must be a non-empty 2-D array, got shape {pattern.shape}")
+    if int(factor) != factor or factor < 1:
+        raise ValueError(f"factor must be an integer >= 1, got {factor!r}")
+    factor = int(factor)
+    if factor == 1:
+        return pattern.astype(np.float32, copy=False)
+    rows, cols = pattern.shape
+    spectrum = scipy.fft.rfft2(pattern.astype(np.float32, copy=False), workers=-1)
+    kr = (rows - 1) // 2                      # highest row frequency kept (a Nyquist row is left out)
+    kc = (cols - 1) // 2
+    fine = np.zeros((rows * factor, cols * factor // 2 + 1), np.complex64)
+    shift = -(factor - 1) / (2.0 * factor)    # coarse coordinate of fine texel 0's centre
+    col_phase = np.exp(2j * np.pi * np.arange(kc + 1) * shift / cols).astype(np.complex64)
+    row_freq = np.r_[np.arange(kr + 1), np.arange(-kr, 0)]
+    row_phase = np.exp(2j * np.pi * row_freq * shift / rows).astype(np.complex64)
+    scale = np.float32(factor * factor)       # irfft2 divides by the finer grid's size
+    fine[:kr + 1, :kc + 1] = spectrum[:kr + 1, :kc + 1] * (row_phase[:kr + 1, None] * col_phase[None, :] * scale)
+    if kr > 0:
+        fine[-kr:, :kc + 1] = spectrum[-kr:, :kc + 1] * (row_phase[kr + 1:, None] * col_phase[None, :] * scale)
+    del spectrum
+    return scipy.fft.irfft2(fine, s=(rows * factor, cols * factor), workers=-1).astype(np.float32, copy=False)
+
+
 def speckle_size_from_pattern(pattern: np.ndarray) -> float:
     """Estimate the mean speckle size from the autocorrelation (full width at half maximum).
 

@@ -1,0 +1,198 @@
+"""The truth below a pixel: is a rendered sub-pixel motion the exact image of the specimen moved (issue 38)?
+
+A speckled plate faces a camera square on and moves rigidly in its plane by a fraction of a pixel. Every render
+path draws it (:data:`PATHS`), and a *converged reference* of the same optical model draws it too: ``16 x 16``
+sub-pixel rays per pixel, each meeting the plate, the paint evaluated at that point as what it is defined to be,
+the band-limited interpolant of its texture (:func:`scenes.speckle.fourier_upsample` to at least 16 texels per
+pixel, then looked up linearly, an error below 1e-5 px) -- not through the texture the renderers look up.
+
+Two figures per path and phase, both by the instrument (2-D subset DIC, second order, biquintic):
+
+* **render error** -- DIC between the reference and the render *of the same position*: any displacement it finds
+  is the render's own, the pattern drawn where it is not (0 for an exact render; the instrument is not in it);
+* **motion error** -- DIC between the render at rest and the render moved, minus the true motion, beside the
+  instrument alone on the references (the exact images) at rest and moved.
+
+Without sensor noise both are systematic: what the DIC finds is what the images carry.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from scenes.camera import SensorSpec
+from scenes.paint import Paint, layout, pattern, texture
+from scenes.speckle import fourier_upsample
+from scenes.surfaces import TexturedSurface
+from scenes.truth import focal_length_for_focus_mm, pixel_rays
+
+#: Render paths checked (``pinhole`` quadrature, the occlusion renderer, a thin lens in focus, Mitsuba).
+PATHS = ("quadrature", "occlusion", "thin lens in focus", "mitsuba")
+#: Sub-pixel rays per pixel side of the converged reference.
+REFERENCE_SIDE = 16
+#: Pixels along the image's edges no subset reaches (a path may leave them to Monte Carlo).
+EDGE_PX = 4
+#: Texels per pixel of the reference's band-limited paint (its linear lookup errs by < 1e-5 px there).
+REFERENCE_TEXELS_PER_PX = 16.0
+
+
+@dataclass(frozen=True)
+class PlateScene:
+    """A square camera (pinhole or thin lens) facing a painted plate at ``distance_mm``, camera frame = world.
+
+    ``size_px`` pixels a side; the plate covers them with a margin. The paint's speckle is ``speckle_px`` at the
+    plate. ``texel_px`` is the pattern's sample spacing (None: the paint's default, speckle / 5); ``lookup_factor``
+    overrides the paint's (1: the pattern itself is looked up, as before issue 38; with ``texel_px = 1 / 3.5`` that
+    is the paper's planar specimens' texture, :meth:`scenes.specimens.SpeckledPlate.for_pixel_size`)."""
+
+    size_px: int = 96
+    fx_px: float = 8000.0
+    distance_mm: float = 300.0
+    speckle_px: float = 5.0
+    seed: int = 0
+    lookup_factor: int | None = None
+    texel_px: float | None = None
+    alpha_deg: float = 0.0
+    k1: float = 0.0
+
+    @property
+    def footprint_mm(self) -> float:
+        return self.distance_mm / self.fx_px
+
+    def spec(self, lens: str = "pinhole") -> SensorSpec:
+        c = (self.size_px - 1) / 2.0
+        spec = SensorSpec(fx=self.fx_px, fy=self.fx_px, cx=c, cy=c, width=self.size_px, height=self.size_px,
+                          alpha_deg=self.alpha_deg, k1=self.k1)
+        if lens == "pinhole":
+            return spec
+        thin = replace(spec, lens="thin", f_number=8.0, focal_length_mm=0.5 * spec.fx * spec.pixel_pitch_mm)
+        F = focal_length_for_focus_mm(thin, np.eye(3), np.zeros(3), [[0.0, 0.0, self.distance_mm]])
+        return replace(thin, focal_length_mm=F)
+
+    def paint(self) -> Paint:
+        texel = None if self.texel_px is None else self.texel_px * self.footprint_mm
+        return Paint(speckle_mm=self.speckle_px * self.footprint_mm, texel_mm=texel, seed=self.seed)
+
+    def plate(self):
+        """(vertices (4, 3) mm at rest, faces, paint layout) of the plate, 30 % larger than the view."""
+        h = 0.65 * self.size_px * self.footprint_mm
+        V = np.array([[-h, -h, self.distance_mm], [h, -h, self.distance_mm], [h, h, self.distance_mm],
+                      [-h, h, self.distance_mm]])
+        T = np.array([[0, 2, 1], [0, 3, 2]])              # normal -z: faces the camera
+        return V, T, layout(self.paint(), V, T, "subpixel plate")
+
+    def surfaces(self, offset_px=(0.0, 0.0)) -> list[TexturedSurface]:
+        """The plate moved in its plane by ``offset_px`` (x, y) pixels' worth of footprint."""
+        V, T, lay = self.plate()
+        paint = self.paint()
+        if self.lookup_factor is not None:
+            tex = fourier_upsample(pattern(paint, lay.shape), self.lookup_factor)
+        else:
+            tex = texture(paint, lay.shape, lay.origin_mm)
+        move = np.array([offset_px[0], offset_px[1], 0.0]) * self.footprint_mm
+        return [TexturedSurface(vertices_mm=V + move, faces=T, uv=lay.uv(), texture=tex, filter="bilinear")]
+
+
+def converged_reference(scene: PlateScene, offset_px=(0.0, 0.0), exposure_grey: float = 255.0,
+                        side: int = REFERENCE_SIDE) -> np.ndarray:
+    """The box-filtered pinhole image of the plate moved by ``offset_px``, from ``side**2`` rays per pixel and the
+    paint's band-limited interpolant (module docstring). Returns (size_px, size_px) float64 grey levels."""
+    V, T, lay = scene.plate()
+    pat = pattern(scene.paint(), lay.shape)
+    texel_px = lay.size_mm[0] / lay.shape[1] / scene.footprint_mm
+    factor = int(np.ceil(REFERENCE_TEXELS_PER_PX * texel_px))
+    fine = fourier_upsample(pat, factor).astype(np.float64)
+    spec = scene.spec("pinhole")
+    n = scene.size_px
+    sub = (np.arange(side) + 0.5) / side - 0.5
+    out = np.zeros((n, n))
+    move = np.array([offset_px[0], offset_px[1]]) * scene.footprint_mm
+    from scipy.ndimage import map_coordinates
+
+    for row in range(n):                       # one image row at a time: side**2 * n rays
+        xs = (np.arange(n)[:, None] + sub[None, :]).ravel()
+        ys = row + sub
+        px = np.column_stack([np.tile(xs, side), np.repeat(ys, len(xs))])
+        O, D = pixel_rays(spec, np.eye(3), np.zeros(3), px)
+        X = O + D * ((scene.distance_mm - O[:, 2]) / D[:, 2])[:, None]
+        uv = (X[:, :2] - move - lay.origin_mm) / lay.size_mm
+        coords = [uv[:, 1] * fine.shape[0] - 0.5, uv[:, 0] * fine.shape[1] - 0.5]
+        vals = map_coordinates(fine, coords, order=1, mode="grid-wrap")
+        out[row] = vals.reshape(side, n, side).mean(axis=(0, 2))
+    return exposure_grey * out
+
+
+def render(scene: PlateScene, path: str, offset_px=(0.0, 0.0), *, exposure_grey: float = 255.0,
+           mitsuba_target_grey: float = 0.05, seed: int = 1) -> np.ndarray:
+    """The plate moved by ``offset_px`` drawn by one of :data:`PATHS`; (size_px, size_px) float64 grey levels.
+    Raises ValueError when a deterministic path leaves a pixel of the view unknown."""
+    from scenes.adaptive import AdaptiveSettings, render_views_adaptive
+    from scenes.exact_render import render_view_exact, render_view_in_focus, render_view_occluded
+
+    surfaces = scene.surfaces(offset_px)
+    pose = (np.eye(3), np.zeros(3))
+    if path == "quadrature":
+        return render_view_exact(scene.spec(), *pose, surfaces, exposure_grey=exposure_grey)[0].astype(float)
+    if path == "occlusion":
+        image, known, _ = render_view_occluded(scene.spec(), *pose, surfaces, exposure_grey=exposure_grey)
+    elif path == "thin lens in focus":
+        image, known, _ = render_view_in_focus(scene.spec("thin"), *pose, surfaces, exposure_grey=exposure_grey)
+    elif path == "mitsuba":
+        return render_views_adaptive([(scene.spec(), pose)], surfaces, seed=seed, exposure_grey=exposure_grey,
+                                     settings=AdaptiveSettings(target_mc_grey=mitsuba_target_grey))[0] \
+            .image_grey.astype(float)
+    else:
+        raise ValueError(f"render path {path!r}: choose one of {', '.join(PATHS)}")
+    inner = known[EDGE_PX:-EDGE_PX, EDGE_PX:-EDGE_PX]
+    if not inner.all():
+        raise ValueError(f"the {path} path left {int((~inner).sum())} pixels of the plate's view to Monte Carlo")
+    # The image's outermost pixels, which no subset reaches, take their nearest known neighbour's value: a jump to
+    # 0 there would reach into the subsets through the B-spline prefilter.
+    from scipy.ndimage import distance_transform_edt
+
+    _, (r, c) = distance_transform_edt(~known, return_indices=True)
+    return image.astype(float)[r, c]
+
+
+def dic_displacements(reference: np.ndarray, deformed: np.ndarray, subset_px: int = 25, step_px: int = 6,
+                      margin_px: int = 16) -> np.ndarray:
+    """(N, 2) displacements (u, v) px the instrument measures from ``reference`` to ``deformed`` (second order,
+    biquintic) at the converged points of a grid ``margin_px`` inside the image."""
+    from measurement.dic import DICSettings, correlate
+
+    n = reference.shape[0]
+    result = correlate(reference, deformed, DICSettings(subset_size=subset_px, step=step_px, order=2),
+                       roi=(margin_px, margin_px, n - 1 - margin_px, n - 1 - margin_px))
+    ok = np.isfinite(result.u) & np.isfinite(result.v)
+    return np.column_stack([result.u[ok], result.v[ok]])
+
+
+def phase_errors(scene: PlateScene, path: str, phases_px, *, reference_side: int = REFERENCE_SIDE) -> list[dict]:
+    """For each (x, y) phase: the render error (DIC reference -> render of the same position: RMS and mean of
+    |d|, px), the motion error (DIC render at rest -> render moved, minus the motion) and the instrument alone
+    (the same on the references). Both renders of a phase are one path's."""
+    ref0 = converged_reference(scene, (0.0, 0.0), side=reference_side)
+    img0 = render(scene, path, (0.0, 0.0))
+    rows = []
+    for phase in phases_px:
+        phase = (float(phase[0]), float(phase[1]))
+        ref = converged_reference(scene, phase, side=reference_side) if phase != (0.0, 0.0) else ref0
+        img = render(scene, path, phase) if phase != (0.0, 0.0) else img0
+        d_render = dic_displacements(ref, img)
+        d_motion = dic_displacements(img0, img) - np.array(phase)
+        d_alone = dic_displacements(ref0, ref) - np.array(phase)
+        rows.append({"phase_px": list(phase),
+                     "render_rms_px": _rms(d_render), "render_mean_px": d_render.mean(axis=0).tolist(),
+                     "motion_rms_px": _rms(d_motion), "motion_mean_px": d_motion.mean(axis=0).tolist(),
+                     "instrument_alone_rms_px": _rms(d_alone), "points": int(len(d_render)),
+                     "grey_rms_vs_reference": float(np.sqrt(np.mean((img - ref)[8:-8, 8:-8] ** 2)))})
+    return rows
+
+
+def _rms(d: np.ndarray) -> float:
+    """RMS length of (N, 2) vectors."""
+    return float(np.sqrt(np.mean(np.sum(d ** 2, axis=1)))) if len(d) else float("nan")
+
+
+__all__ = ["PATHS", "PlateScene", "converged_reference", "dic_displacements", "phase_errors", "render"]
