@@ -3,7 +3,7 @@
 A digital twin of a user's rig (:mod:`workbench.twin`) needs *their* speckle pattern, as their camera sees
 it, on a surface in front of *their* rig. The photograph already carries the camera's optics and pixel
 integration, so the twin does not blur it again: the texture is the image itself read as a continuous
-function (:class:`ImageTexture`: a cubic B-spline through the pixel values, which reproduces every pixel
+function (:class:`ImageTexture`: the band-limited interpolant of the pixel values, which reproduces every pixel
 exactly), painted onto a plane through the camera that took it, and every twin pixel *point-samples* it:
 
 * :func:`render_plane_view` -- a camera's view of the textured plane, optionally moved by a displacement
@@ -13,11 +13,15 @@ exactly), painted onto a plane through the camera that took it, and every twin p
 * :func:`render_deformed_image` -- the same in the image plane (a 2-D twin without a calibration): pixel
   ``x`` shows the texture at ``X`` with ``X + u(X) = x``, ``u`` in px.
 
-The cubic spline is not the instrument's biquintic B-spline, so the twin does not hand the instrument its own
-interpolant ("inverse crime"); between pixels it low-passes the pattern slightly (about 6 % of the amplitude
-at a 4-pixel period). Its mirror boundary errs near the image's edges (up to 3 % of the amplitude in the outermost
-pixel between pixel centres, 0.05 % 3 px in), where a DIC subset rarely sits. Noise is added by
-:func:`scenes.noise.apply_sensor_noise`.
+A sub-pixel motion of a photograph is exact when the photograph moves as a band-limited function (the
+convention of the DIC Challenge's shifted images): the texture is the photograph's cosine-series (DCT-II)
+interpolant -- the Fourier interpolant of its mirrored copy, so no wrap-around at the edges -- sampled
+:data:`UPSAMPLE` times finer (the original pixel centres among the samples), and a cubic B-spline through those
+samples evaluates it between them. A cubic spline through the pixels themselves shifted a 5 px speckle by up to
+0.0012 px depending on the sub-pixel phase (issue 38); through the finer samples its error is below 0.0002 px.
+Neither is the instrument's biquintic B-spline of the pixels, so the twin does not hand the instrument its own
+interpolant ("inverse crime"). The mirror boundary errs near the image's edges, where a DIC subset rarely sits.
+Noise is added by :func:`scenes.noise.apply_sensor_noise`.
 """
 from __future__ import annotations
 
@@ -31,20 +35,45 @@ from .truth import pixel_rays, project_points
 
 #: Points this close to the image's first or last row or column count as on it, px.
 EDGE_TOLERANCE_PX = 1e-9
+#: Samples of the photograph's band-limited interpolant per pixel along each axis (odd: pixel centres among them).
+UPSAMPLE = 3
 #: Iterations of the fixed-point solve ``X = x - u(X)`` (displacement gradients of a few 1e-3 converge in 3).
 MATERIAL_POINT_ITERATIONS = 8
 
 
+def dct_upsample(image: np.ndarray, factor: int) -> np.ndarray:
+    """An image's cosine-series (DCT-II) interpolant at ``factor`` samples per pixel along each axis, at
+    ``x = (k + 0.5) / factor - 0.5`` (an odd factor puts the pixel centres among them, where it equals the image).
+
+    Parameters
+    ----------
+    image : ndarray, shape (rows, cols)
+    factor : int >= 1
+
+    Returns
+    -------
+    ndarray of float64, shape (rows * factor, cols * factor)
+    """
+    import scipy.fft
+
+    coefficients = scipy.fft.dctn(np.asarray(image, np.float64), type=2, norm="ortho", workers=-1)
+    rows, cols = coefficients.shape
+    padded = np.zeros((rows * factor, cols * factor))
+    padded[:rows, :cols] = coefficients * factor        # the orthonormal bases' scales differ by sqrt(factor) per axis
+    return scipy.fft.idctn(padded, type=2, norm="ortho", workers=-1)
+
+
 @dataclass(frozen=True, eq=False)
 class ImageTexture:
-    """An image read as a continuous pattern: cubic B-spline through the pixel values.
+    """An image read as a continuous pattern: its band-limited (DCT-II) interpolant (module docstring).
 
     Attributes
     ----------
     image : ndarray of float64, shape (rows, cols)
         The pixel values (pixel (row i, col j) centred at ``(x, y) = (j, i)``).
-    coefficients : ndarray of float64, shape (rows, cols)
-        Cubic B-spline coefficients (mirror boundary).
+    coefficients : ndarray of float64, shape (rows * UPSAMPLE, cols * UPSAMPLE)
+        Cubic B-spline coefficients (half-sample symmetric boundary) of the interpolant sampled at
+        ``x = (k + 0.5) / UPSAMPLE - 0.5``.
     fill_grey : float
         Value returned outside the image (its mean).
     """
@@ -61,7 +90,7 @@ class ImageTexture:
             raise ValueError(f"a texture image must be 2-D and at least 4 x 4 px, got shape {values.shape}")
         if not np.all(np.isfinite(values)):
             raise ValueError("a texture image must be finite everywhere")
-        coefficients = ndimage.spline_filter(values, order=3, mode="mirror")
+        coefficients = ndimage.spline_filter(dct_upsample(values, UPSAMPLE), order=3, mode="reflect")
         return cls(values, coefficients, float(values.mean()))
 
     @property
@@ -87,7 +116,8 @@ class ImageTexture:
                                                                 rows - 1.0, y))
         inside = np.isfinite(x) & np.isfinite(y) & (x >= 0) & (y >= 0) & (x <= cols - 1) & (y <= rows - 1)
         coords = np.stack([np.where(inside, y, 0.0).ravel(), np.where(inside, x, 0.0).ravel()])
-        values = ndimage.map_coordinates(self.coefficients, coords, order=3, mode="mirror", prefilter=False)
+        coords = (coords + 0.5) * UPSAMPLE - 0.5                    # in samples of the finer grid
+        values = ndimage.map_coordinates(self.coefficients, coords, order=3, mode="reflect", prefilter=False)
         return np.where(inside, values.reshape(x.shape), self.fill_grey), inside
 
 

@@ -37,7 +37,8 @@ def _scenario(folder, scale=0.1, extra=""):
 
 def test_render_specimen_writes_a_dataset_whose_truth_is_the_analytic_plate(tmp_path, capsys):
     """CLI render of an Exodus plate: images and truth of 3 states; at integer and sub-pixel points of the left
-    reference image the truth equals the ray-plane intersection moved by the linear field (1e-9 mm)."""
+    reference image the truth equals the ray-plane intersection moved by the linear field (1e-9 mm); the static state
+    is state 0 moved by (0.5, 0.5) pixel footprints."""
     from workbench.cli import main
     from workbench.scoring.datasets import open_dataset, point_truth
     from scenes.truth import pixel_rays
@@ -47,7 +48,7 @@ def test_render_specimen_writes_a_dataset_whose_truth_is_the_analytic_plate(tmp_
     assert "left reference:" in capsys.readouterr().out
     ds = open_dataset(tmp_path / "out")
     assert ds.kind == "specimen" and ds.n_states == 4 and ds.labels[1] == "step 1 (t = 1)"
-    assert ds.labels[3] == "static: state 0 again"
+    assert ds.labels[3] == "static: state 0 moved by (0.5, 0.5) px in its plane, new noise"
     doc = json.loads((tmp_path / "out" / "truth.json").read_text())
     R0, t0 = np.array(doc["R_world_from_specimen"]), np.array(doc["t_world_from_specimen_mm"])
     spec_cam = doc["cameras"]["left"]
@@ -64,8 +65,10 @@ def test_render_specimen_writes_a_dataset_whose_truth_is_the_analytic_plate(tmp_
     o_s, d_s = (o - t0) @ R0, d @ R0
     lam = -o_s[:, 2] / d_s[:, 2]
     X = o_s + lam[:, None] * d_s + shift                     # on the plate's face z = 0 (specimen frame)
+    # the static state repeats state 0 moved by half a pixel footprint (at the working distance) along x and y
+    offset = np.array([0.5, 0.5, 0.0]) * np.linalg.norm(t0) / spec.fx
     for k in range(4):
-        a, b = (A[k], B[k]) if k < 3 else (A[0], B[0])      # the static state repeats state 0
+        a, b = (A[k], B[k]) if k < 3 else (A[0], B[0] + offset)
         expected = (X + X @ a.T + b) @ R0.T + t0
         assert np.abs(pt.X_left_mm[k] - expected).max() < 1e-9
 

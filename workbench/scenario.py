@@ -213,8 +213,13 @@ class SpecimenConfig:
                                                    min=-100.0, max=100.0)
     rigid_step_deg: tuple[float, float, float] = _f((0.0, 0.0, 0.0), "rotation per rigid state about the specimen "
                                                                       "origin (x, y, z axes)", min=-30.0, max=30.0)
-    static_pair: bool = _f(True, "end with a static state: state 0 again with new sensor noise (the noise floor the "
-                                 "instrument reaches on this scene)")
+    static_pair: bool = _f(True, "end with a static state: state 0 again with new sensor noise, moved rigidly in its "
+                                 "plane by static_offset_px (the noise floor the instrument reaches on this scene)")
+    static_offset_px: tuple[float, float] = _f((0.5, 0.5), "the static state's rigid move along the specimen's x and "
+                                               "y, in pixel footprints at the working distance: it samples other paint "
+                                               "points than the reference, so its floor holds every error a moved "
+                                               "specimen carries but the motion's ((0, 0): the same points again)",
+                                               min=-10.0, max=10.0)
     grazing_limit_deg: float = _f(70.0, "points seen more obliquely than this are masked", min=10.0, max=89.0)
     sagitta_px: float = _f(0.02, "largest distance between the flat pieces rendered and the curved FE faces, in "
                                  "pixel footprints at the working distance (the truth is the curved surface's)",
@@ -277,7 +282,7 @@ SPECKLE_RENDERER_TAGS = {
 
 #: The specimen path's version (tessellation, paint layout, truth maps): a change that alters a specimen
 #: dataset's images or truth files gets a new one, so stored datasets are not reused across it.
-SPECIMEN_RENDER_VERSION = "mesh-specimen/3"
+SPECIMEN_RENDER_VERSION = "mesh-specimen/4"
 
 #: Which sections of a scenario change the images of each dataset it renders.
 DATASET_SECTIONS = {

@@ -238,10 +238,13 @@ def build_specimen(scenario) -> BuiltSpecimen:
         rigid.append((rotation_xyz_deg(np.asarray(cfg.rigid_step_deg) * j), np.asarray(cfg.rigid_step_mm) * j))
         labels.append(f"rigid move {j}")
     U = np.concatenate([U, np.repeat(U[-1:], cfg.rigid_states, axis=0)])
-    if cfg.static_pair:               # the same scene again, new sensor noise: the instrument's noise floor
+    if cfg.static_pair:
+        # The reference scene again with new sensor noise, moved by a sub-pixel offset in its plane: a repeat of the
+        # same position samples the same paint points, and its floor would hide every error of a rendered motion.
         U = np.concatenate([U, U[:1]])
-        rigid.append(rigid[0])
-        labels.append("static: state 0 again")
+        dx, dy = (float(v) for v in cfg.static_offset_px)
+        rigid.append((np.eye(3), np.array([dx, dy, 0.0]) * footprint_mm))
+        labels.append(f"static: state 0 moved by ({dx:g}, {dy:g}) px in its plane, new noise")
     speckle_px = 5.0 if scenario.speckle.size_px is None else scenario.speckle.size_px
     paint = Paint(kind=cfg.paint, method=cfg.paint_method,
                   speckle_mm=cfg.speckle_mm if cfg.speckle_mm is not None else speckle_px * footprint_mm,

@@ -124,20 +124,24 @@ def converged_reference(scene: PlateScene, offset_px=(0.0, 0.0), exposure_grey: 
 
 
 def render(scene: PlateScene, path: str, offset_px=(0.0, 0.0), *, exposure_grey: float = 255.0,
-           mitsuba_target_grey: float = 0.05, seed: int = 1) -> np.ndarray:
+           mitsuba_target_grey: float = 0.05, seed: int = 1, quadrature_order: int | None = None) -> np.ndarray:
     """The plate moved by ``offset_px`` drawn by one of :data:`PATHS`; (size_px, size_px) float64 grey levels.
-    Raises ValueError when a deterministic path leaves a pixel of the view unknown."""
+    ``quadrature_order`` overrides the deterministic paths' Gauss-Legendre nodes per pixel side. Raises ValueError
+    when a deterministic path leaves a pixel of the view unknown."""
     from scenes.adaptive import AdaptiveSettings, render_views_adaptive
     from scenes.exact_render import render_view_exact, render_view_in_focus, render_view_occluded
 
+    from scenes.exact_render import QUADRATURE_ORDER
+
     surfaces = scene.surfaces(offset_px)
     pose = (np.eye(3), np.zeros(3))
+    q = {"exposure_grey": exposure_grey, "quadrature_order": quadrature_order or QUADRATURE_ORDER}
     if path == "quadrature":
-        return render_view_exact(scene.spec(), *pose, surfaces, exposure_grey=exposure_grey)[0].astype(float)
+        return render_view_exact(scene.spec(), *pose, surfaces, **q)[0].astype(float)
     if path == "occlusion":
-        image, known, _ = render_view_occluded(scene.spec(), *pose, surfaces, exposure_grey=exposure_grey)
+        image, known, _ = render_view_occluded(scene.spec(), *pose, surfaces, **q)
     elif path == "thin lens in focus":
-        image, known, _ = render_view_in_focus(scene.spec("thin"), *pose, surfaces, exposure_grey=exposure_grey)
+        image, known, _ = render_view_in_focus(scene.spec("thin"), *pose, surfaces, **q)
     elif path == "mitsuba":
         return render_views_adaptive([(scene.spec(), pose)], surfaces, seed=seed, exposure_grey=exposure_grey,
                                      settings=AdaptiveSettings(target_mc_grey=mitsuba_target_grey))[0] \
@@ -156,32 +160,51 @@ def render(scene: PlateScene, path: str, offset_px=(0.0, 0.0), *, exposure_grey:
 
 
 def dic_displacements(reference: np.ndarray, deformed: np.ndarray, subset_px: int = 25, step_px: int = 6,
-                      margin_px: int = 16) -> np.ndarray:
+                      margin_px: int = 16, points: bool = False):
     """(N, 2) displacements (u, v) px the instrument measures from ``reference`` to ``deformed`` (second order,
-    biquintic) at the converged points of a grid ``margin_px`` inside the image."""
+    biquintic) at the converged points of a grid ``margin_px`` inside the image; with ``points`` also their (N, 2)
+    positions (x, y) px, first."""
     from measurement.dic import DICSettings, correlate
 
     n = reference.shape[0]
     result = correlate(reference, deformed, DICSettings(subset_size=subset_px, step=step_px, order=2),
                        roi=(margin_px, margin_px, n - 1 - margin_px, n - 1 - margin_px))
     ok = np.isfinite(result.u) & np.isfinite(result.v)
-    return np.column_stack([result.u[ok], result.v[ok]])
+    d = np.column_stack([result.u[ok], result.v[ok]])
+    return (np.column_stack([result.x[ok], result.y[ok]]).astype(float), d) if points else d
 
 
-def phase_errors(scene: PlateScene, path: str, phases_px, *, reference_side: int = REFERENCE_SIDE) -> list[dict]:
+def true_motion_px(scene: PlateScene, xy_px: np.ndarray, offset_px) -> np.ndarray:
+    """(N, 2) image motion of the plate's points seen at ``xy_px`` when it moves by ``offset_px`` footprints: the
+    ray meets the plate, the point moves, and is projected again (not uniform under a tilted sensor or a lens
+    distortion)."""
+    from scenes.truth import project_points
+
+    spec = scene.spec("pinhole")
+    O, D = pixel_rays(spec, np.eye(3), np.zeros(3), xy_px)
+    X = O + D * ((scene.distance_mm - O[:, 2]) / D[:, 2])[:, None]
+    X[:, :2] += np.asarray(offset_px, float) * scene.footprint_mm
+    return project_points(spec, np.eye(3), np.zeros(3), X) - xy_px
+
+
+def phase_errors(scene: PlateScene, path: str, phases_px, *, reference_side: int = REFERENCE_SIDE,
+                 **render_options) -> list[dict]:
     """For each (x, y) phase: the render error (DIC reference -> render of the same position: RMS and mean of
     |d|, px), the motion error (DIC render at rest -> render moved, minus the motion) and the instrument alone
-    (the same on the references). Both renders of a phase are one path's."""
+    (the same on the references), against :func:`true_motion_px`. Both renders of a phase are one path's;
+    ``render_options`` go to :func:`render`."""
     ref0 = converged_reference(scene, (0.0, 0.0), side=reference_side)
-    img0 = render(scene, path, (0.0, 0.0))
+    img0 = render(scene, path, (0.0, 0.0), **render_options)
     rows = []
     for phase in phases_px:
         phase = (float(phase[0]), float(phase[1]))
         ref = converged_reference(scene, phase, side=reference_side) if phase != (0.0, 0.0) else ref0
-        img = render(scene, path, phase) if phase != (0.0, 0.0) else img0
+        img = render(scene, path, phase, **render_options) if phase != (0.0, 0.0) else img0
         d_render = dic_displacements(ref, img)
-        d_motion = dic_displacements(img0, img) - np.array(phase)
-        d_alone = dic_displacements(ref0, ref) - np.array(phase)
+        xy, d_motion = dic_displacements(img0, img, points=True)
+        d_motion = d_motion - true_motion_px(scene, xy, phase)
+        xy, d_alone = dic_displacements(ref0, ref, points=True)
+        d_alone = d_alone - true_motion_px(scene, xy, phase)
         rows.append({"phase_px": list(phase),
                      "render_rms_px": _rms(d_render), "render_mean_px": d_render.mean(axis=0).tolist(),
                      "motion_rms_px": _rms(d_motion), "motion_mean_px": d_motion.mean(axis=0).tolist(),
@@ -195,4 +218,45 @@ def _rms(d: np.ndarray) -> float:
     return float(np.sqrt(np.mean(np.sum(d ** 2, axis=1)))) if len(d) else float("nan")
 
 
-__all__ = ["PATHS", "PlateScene", "converged_reference", "dic_displacements", "phase_errors", "render"]
+
+
+
+# ---- the twin's photographed texture ------------------------------------------------------------------------
+def fourier_shift(image: np.ndarray, shift_px) -> np.ndarray:
+    """A periodic image moved by ``shift_px`` (x, y) exactly as a band-limited function (Nyquist terms left out):
+    the value at ``(x, y)`` is the original's at ``(x - sx, y - sy)``."""
+    rows, cols = image.shape
+    fy = np.fft.fftfreq(rows)
+    fx = np.fft.fftfreq(cols)
+    spectrum = np.fft.fft2(image)
+    spectrum[np.abs(fy) >= 0.5, :] = 0
+    spectrum[:, np.abs(fx) >= 0.5] = 0
+    phase = np.exp(-2j * np.pi * (fy[:, None] * shift_px[1] + fx[None, :] * shift_px[0]))
+    return np.fft.ifft2(spectrum * phase).real
+
+
+def photo_phase_errors(photo: np.ndarray, phases_px, margin_px: int = 24) -> list[dict]:
+    """The twin's path (:func:`scenes.image_texture.render_deformed_image`: a photograph read as a continuous
+    texture and moved): for a *periodic* photo, whose exact sub-pixel motion is its band-limited shift
+    (:func:`fourier_shift`), the render error (DIC from the exact shift to the twin's image) and the motion error
+    (DIC from the photo to the twin's moved image, minus the motion) beside the instrument alone, per phase, on
+    points ``margin_px`` inside the image (the texture's mirror boundary errs at its edges)."""
+    from scenes.image_texture import ImageTexture, render_deformed_image
+
+    texture = ImageTexture.from_image(photo)
+    rows = []
+    for phase in phases_px:
+        phase = (float(phase[0]), float(phase[1]))
+        exact = fourier_shift(photo, phase)
+        twin, _ = render_deformed_image(texture, lambda X, Y: (np.full_like(X, phase[0]), np.full_like(Y, phase[1])))
+        d_render = dic_displacements(exact, twin, margin_px=margin_px)
+        d_motion = dic_displacements(photo, twin, margin_px=margin_px) - np.array(phase)
+        d_alone = dic_displacements(photo, exact, margin_px=margin_px) - np.array(phase)
+        rows.append({"phase_px": list(phase), "render_rms_px": _rms(d_render),
+                     "render_mean_px": d_render.mean(axis=0).tolist(), "motion_rms_px": _rms(d_motion),
+                     "motion_mean_px": d_motion.mean(axis=0).tolist(), "instrument_alone_rms_px": _rms(d_alone),
+                     "points": int(len(d_render))})
+    return rows
+
+__all__ = ["PATHS", "PlateScene", "converged_reference", "dic_displacements", "fourier_shift", "phase_errors",
+           "photo_phase_errors", "render", "true_motion_px"]
