@@ -241,7 +241,9 @@ def scheimpflug_design_report(f_number: float = DEFAULT_F_NUMBER,
 def rig_from_calibration(path, scale: float = 1.0) -> StereoRig:
     """A user's own rig from their calibration file (any format the instrument reads: this project's JSON, OpenCV
     YAML/XML, DICe, VIC-3D, MATLAB; MatchID needs the image size and is refused here) as the true rig of a render;
-    ``scale`` < 1 shrinks image size and K together. The working distance is where the optical axes meet."""
+    ``scale`` < 1 shrinks image size and K together. The working distance is where the optical axes meet. A
+    calibration does not say how large the pixels are: they are taken as the paper camera's (3.45 um at scale 1),
+    which only the lens' diffraction and defocus in pixels depend on."""
     from pathlib import Path
 
     from measurement.calibration.formats import load_any_calibration
@@ -254,7 +256,7 @@ def rig_from_calibration(path, scale: float = 1.0) -> StereoRig:
     cal = load_any_calibration(path)
     cams = {side: (c.scaled(scale) if scale != 1.0 else c) for side, c in (("left", cal.left), ("right", cal.right))}
     rig = StereoRig(f"calibration:{path.name}", cams["left"], cams["right"], np.asarray(cal.R_right_from_left, float),
-                    np.asarray(cal.T_right_from_left_mm, float))
+                    np.asarray(cal.T_right_from_left_mm, float), pixel_pitch_mm=DEFAULT_PIXEL_PITCH_MM / scale)
     meeting = rig.optical_axes_meeting_point_mm()
     if not (np.all(np.isfinite(meeting)) and meeting[2] > 0):
         raise ValueError(f"rig calibration {path}: the optical axes do not meet in front of the cameras")

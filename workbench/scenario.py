@@ -40,7 +40,8 @@ class RigConfig:
                       min=0.05, max=1.0)
     lens: str = _f("pinhole", "'pinhole' or 'thin' (defocus: a thin lens focused on the face centre)",
                    choices=("pinhole", "thin"))
-    f_number: float = _f(8.0, "thin-lens f-number (defocus grows as 1/N); f/2.8-f/16 in DIC practice",
+    f_number: float = _f(8.0, "the lens' f-number: a thin lens' defocus grows as 1/N, every lens' diffraction as N "
+                              "(rig.diffraction); f/2.8-f/16 in DIC practice",
                          min=0.5, max=64.0)
     calibration: str = _f("", "specimen scenarios: a calibration file of one's own rig (this project's JSON, OpenCV, "
                               "DICe, VIC-3D, MATLAB) as the true rig instead of 'name', scaled by 'scale'; a relative "
@@ -48,6 +49,9 @@ class RigConfig:
     focus_offset_mm: float = _f(0.0, "thin lens focused this far beyond the face centre along the line of sight "
                                      "(a focusing error; the depth of field at f/8 and 376 mm is a few mm)",
                                 min=-200.0, max=1000.0)
+    diffraction: bool = _f(True, "the lens diffracts (Airy pattern of radius 1.22 wavelength f_number, any lens model, "
+                                 "pinhole included): a rendered image is what the camera records (false: ideal optics)")
+    wavelength_nm: float = _f(550.0, "light wavelength for the diffraction, nm", min=300.0, max=1100.0)
 
 
 @dataclass(frozen=True)
@@ -280,6 +284,9 @@ SPECKLE_RENDERER_TAGS = {
     "auto": "polygon-quadrature/2 order 6, thin lens in focus <= 0.1 px + mitsuba-adaptive, else mitsuba",
     "mitsuba": "mitsuba"}
 
+#: The speckle states' optics when ``rig.diffraction`` is on (:mod:`scenes.optics`).
+OPTICS_VERSION = "diffraction-otf/1"
+
 #: The specimen path's version (tessellation, paint layout, truth maps): a change that alters a specimen
 #: dataset's images or truth files gets a new one, so stored datasets are not reused across it.
 SPECIMEN_RENDER_VERSION = "mesh-specimen/4"
@@ -306,6 +313,8 @@ def dataset_parts(scenario: Scenario) -> dict[str, tuple[str, dict]]:
             content["board_renderer"] = BOARD_RENDERER_TAGS[scenario.render.board_renderer]
         if part == "states":
             content["speckle_renderer"] = SPECKLE_RENDERER_TAGS[scenario.render.speckle_renderer]
+            if scenario.rig.diffraction:        # a default-on field: datasets rendered before it were not diffracted
+                content["optics"] = OPTICS_VERSION
         if scenario.experiment == "specimen" and "specimen" in content:
             # the file's content, not where it lies
             content["specimen"] = {**content["specimen"], "mesh": Path(scenario.specimen.mesh).name}
@@ -316,6 +325,16 @@ def dataset_parts(scenario: Scenario) -> dict[str, tuple[str, dict]]:
                 content["rig_calibration_sha256"] = file_sha256(scenario.rig.calibration)
         out[part] = (hash_of(content), content)
     return out
+
+
+def optics_of(scenario: Scenario, pixel_pitch_mm: float):
+    """The true rig's optics (:class:`scenes.optics.Optics`): its lens' diffraction at ``rig.f_number`` on pixels
+    of ``pixel_pitch_mm`` (the rig's, at its scale), or ideal optics with ``rig.diffraction = false``."""
+    from scenes.optics import Optics
+
+    rig = scenario.rig
+    return Optics(f_number=rig.f_number if rig.diffraction else None, wavelength_nm=rig.wavelength_nm,
+                  pixel_pitch_mm=pixel_pitch_mm)
 
 
 def file_sha256(path: str) -> str | None:

@@ -30,7 +30,8 @@ from scenes.illumination import IlluminationChange
 from scenes.motion import StageErrors
 from scenes.noise import SensorNoise
 from scenes.targets import Checkerboard
-from workbench.scenario import Instrument, Scenario, dataset_parts
+from workbench.rigs import get_rig
+from workbench.scenario import Instrument, Scenario, dataset_parts, optics_of
 
 METRICS = {"mean_error_um": "mean of measured D − stage reading (µm): the paper's Fig 6(a)",
            "std_um": "std of measured D over the points (µm): the paper's Fig 6(b)",
@@ -123,7 +124,8 @@ def render_states(scenario: Scenario, folder: Path) -> None:
                         f_number=scenario.rig.f_number, progress=False, overwrite=True, stage_errors=stage,
                         drift=drift, illumination=light, lens_terms=lens_terms(scenario),
                         electrons_per_grey=r.electrons_per_grey, specimen=specimen,
-                        focus_offset_mm=scenario.rig.focus_offset_mm, renderer=r.speckle_renderer)
+                        focus_offset_mm=scenario.rig.focus_offset_mm, renderer=r.speckle_renderer,
+                        optics=optics_of(scenario, get_rig(scenario.rig.name, scenario.rig.scale).pixel_pitch_mm))
 
 
 #: Painted speckle size when the scenario leaves it open, px at the working distance (as ``reproduce rigid-motion``).

@@ -252,7 +252,7 @@ def render_rigid_motion(rig: StereoRig | str, out_dir, scale: float = 1.0, lens:
                         stage_errors: StageErrors | None = None, drift: CameraDrift | None = None,
                         illumination: IlluminationChange | None = None, lens_terms: dict | None = None,
                         electrons_per_grey: float | None = None, focus_offset_mm: float = 0.0,
-                        mc_target_grey: float | None = None, renderer: str = "auto") -> RigidMotionTruth:
+                        mc_target_grey: float | None = None, renderer: str = "auto", optics=None) -> RigidMotionTruth:
     """Render the rigid-motion test in both cameras and write ``left_KK.png``, ``right_KK.png``, ``truth.json``
     and ``manifest.json`` (truth and manifest last: a folder with a manifest is complete).
 
@@ -277,6 +277,8 @@ def render_rigid_motion(rig: StereoRig | str, out_dir, scale: float = 1.0, lens:
         default: the stage's own errors (:class:`scenes.motion.StageErrors`), a camera drifting between states
         (:class:`scenes.drift.CameraDrift`), an illumination change between states
         (:class:`scenes.illumination.IlluminationChange`), true-lens terms the rig's model lacks, shot noise.
+    optics : :class:`scenes.optics.Optics`, optional
+        The lens' diffraction (None: ideal optics, the images as rendered).
 
     Returns
     -------
@@ -300,9 +302,10 @@ def render_rigid_motion(rig: StereoRig | str, out_dir, scale: float = 1.0, lens:
                                  len(truth.poses), out_dir, noise, spp=spp, seed=seed,
                                  desc=f"rendering rigid motion ({lens})", progress=progress, drift=drift,
                                  illumination=illumination, mc_target_grey=mc_target_grey, mc_log=mc_log,
-                                 renderer=renderer, render_log=render_log)
+                                 renderer=renderer, render_log=render_log, optics=optics)
     truth.files = files
-    truth.info.update(render_info(rig, rig_scale, spp, seed, noise_grey, mc_target_grey, mc_log, render_log))
+    truth.info.update(render_info(rig, rig_scale, spp, seed, noise_grey, mc_target_grey, mc_log, render_log,
+                                  optics))
     if electrons_per_grey is not None:
         truth.info["render"]["electrons_per_grey"] = float(electrons_per_grey)
     if drift is not None and not drift.is_zero:
@@ -351,7 +354,7 @@ def render_stereo_states(truth, surfaces_of_state, n_states: int, out_dir: Path,
                          seed: int, desc: str, progress: bool = True, drift: CameraDrift | None = None,
                          illumination: IlluminationChange | None = None, mc_target_grey: float | None = None,
                          mc_log: list | None = None, renderer: str = "auto",
-                         render_log: list | None = None) -> list[dict[str, str]]:
+                         render_log: list | None = None, optics=None) -> list[dict[str, str]]:
     """Render every state in both cameras as 8-bit ``left_KK.png`` / ``right_KK.png`` (atomic writes).
 
     ``truth`` provides ``specs`` and ``camera_poses``; ``surfaces_of_state(k)`` the scene of state k. One seed per
@@ -366,7 +369,8 @@ def render_stereo_states(truth, surfaces_of_state, n_states: int, out_dir: Path,
     cameras of a state from one scene with :mod:`scenes.adaptive` at that Monte-Carlo noise; each such image's
     measured noise and sample counts are appended to ``mc_log``. ``render_log`` gets one entry per image: which
     renderer made it (with the share of pixels made without Monte Carlo), and why Mitsuba did where ``"auto"``
-    fell back. Returns the file names per state.
+    fell back. ``optics`` (:class:`scenes.optics.Optics`): the lens' diffraction on every render, before the
+    illumination change and the sensor. Returns the file names per state.
     """
     from scenes.exact_render import RENDERER_IN_FOCUS, RENDERER_OCCLUSION, NotExactError, render_view_exact
 
@@ -418,7 +422,8 @@ def render_stereo_states(truth, surfaces_of_state, n_states: int, out_dir: Path,
                 mc_log.append({"state": k, "camera": side, **mc})
             if render_log is not None:
                 render_log.append({"state": k, "camera": side, "renderer": made_by, **entry})
-            image = rendered if illumination is None else illumination.apply(rendered, k)
+            image = rendered if optics is None else optics.apply(rendered)
+            image = image if illumination is None else illumination.apply(image, k)
             # Reconstruction-filter and Monte-Carlo ringing can dip a dark pixel a little below 0; a sensor holds no
             # negative charge, and shot noise needs the exposure >= 0.
             image = np.maximum(image, 0.0)
@@ -437,10 +442,13 @@ def known_fraction_range(render_images: list[dict]) -> list[float] | None:
 
 def render_info(rig: StereoRig, rig_scale, spp: int, seed: int, noise_grey: float,
                 mc_target_grey: float | None = None, mc_log: list | None = None,
-                render_log: list | None = None) -> dict:
+                render_log: list | None = None, optics=None) -> dict:
     """The ``render`` and ``rig`` entries of a rendered sequence's truth.json (``renderers``: images per renderer,
-    ``images``: which renderer made each image and why Mitsuba did where the deterministic one could not)."""
+    ``images``: which renderer made each image and why Mitsuba did where the deterministic one could not;
+    ``optics``: the lens' diffraction, when there is one)."""
     adaptive = {} if mc_target_grey is None else {"mc_target_grey": float(mc_target_grey), "mc": mc_log or []}
+    if optics is not None and optics.f_number is not None:
+        adaptive["optics"] = optics.to_dict()
     if render_log:
         names = [r["renderer"] for r in render_log]
         adaptive.update(renderers={n: names.count(n) for n in sorted(set(names))}, images=render_log)

@@ -32,6 +32,7 @@ from scenes.paint import Paint
 from scenes.surface_mesh import SurfaceMesh
 from workbench.manifest import complete_folder, prepare_folder
 from workbench.rigs import get_rig
+from workbench.scenario import optics_of
 
 SIDES = ("left", "right")
 KIND = "specimen"
@@ -326,6 +327,8 @@ def render_specimen(scenario, out_dir, *, progress: bool = True, overwrite: bool
     prepare_folder(out_dir, KIND, planned, overwrite=overwrite)
     r = scenario.render
     noise = SensorNoise(read_noise_grey=r.read_noise_grey, bit_depth=8, electrons_per_grey=r.electrons_per_grey)
+    rig = rig_of(scenario)
+    optics = optics_of(scenario, rig.pixel_pitch_mm)
     render_log: list = []
     mc_log: list = []
     # what the deterministic renderer cannot make (occluding edges, blur) is traced to this Monte-Carlo noise
@@ -334,10 +337,9 @@ def render_specimen(scenario, out_dir, *, progress: bool = True, overwrite: bool
     truth.files = render_stereo_states(
         truth, lambda k: truth.specimen.surfaces(k, *truth.pose), K, out_dir, noise, spp=r.spp, seed=scenario.seed,
         desc=f"rendering {src.name}", progress=progress, renderer=r.speckle_renderer, render_log=render_log,
-        mc_log=mc_log, mc_target_grey=mc_target)
-    rig = rig_of(scenario)
+        mc_log=mc_log, mc_target_grey=mc_target, optics=optics)
     truth.info.update(render_info(rig, scenario.rig.scale, r.spp, scenario.seed, r.read_noise_grey, mc_target, mc_log,
-                                  render_log))
+                                  render_log, optics))
     for path in sources:
         with atomic_writer(out_dir / path.name, "wb") as handle, open(path, "rb") as source:
             shutil.copyfileobj(source, handle)
