@@ -139,6 +139,17 @@ class SensorSpec:
         v = self.image_distance_mm
         return 1.0 / (1.0 / self.focal_length_mm - 1.0 / v)
 
+    def supersampled(self, factor: int) -> "SensorSpec":
+        """The same sensor cut into ``factor x factor`` finer pixels (same optics, same field of view): fine pixel
+        ``j`` is centred at coarse pixel coordinate ``(j + 0.5) / factor - 0.5``, so coarse pixel ``i`` is the mean
+        of fine pixels ``factor i .. factor i + factor - 1`` along each axis."""
+        s = int(factor)
+        if s != factor or s < 1:
+            raise ValueError(f"supersampling factor must be an integer >= 1, got {factor!r}")
+        return replace(self, fx=self.fx * s, fy=self.fy * s, cx=s * self.cx + (s - 1) / 2.0,
+                       cy=s * self.cy + (s - 1) / 2.0, width=self.width * s, height=self.height * s,
+                       pixel_pitch_mm=self.pixel_pitch_mm / s)
+
     def with_(self, **changes) -> "SensorSpec":
         return replace(self, **changes)
 

@@ -57,6 +57,9 @@ class Paint:
     seed : speckle seed
     angle_deg : the pattern turned by this angle in its (u, v) plane (a checker whose lines are not along the
         image axes: corner estimators degrade on axis-aligned edges)
+    edge_mm : the speckles' edge width, the sigma of a Gaussian (None: speckle / 6, soft edges as sprayed paint
+        has; a sharp paint, e.g. speckle / 40 with ``texel_mm`` small enough to hold it, aliases unless the optics
+        low-pass it)
     """
 
     kind: str = "speckle"
@@ -75,6 +78,7 @@ class Paint:
     base_grey: float = 0.5
     seed: int = 0
     angle_deg: float = 0.0
+    edge_mm: float | None = None
 
     def __post_init__(self):
         if self.kind not in PAINT_KINDS:
@@ -94,6 +98,8 @@ class Paint:
             raise ValueError("paint: give both axis_point_mm and axis_direction (a cylinder), or neither")
         if not 0 < self.max_angle_deg < 90:
             raise ValueError(f"paint max_angle_deg must be in (0, 90), got {self.max_angle_deg!r}")
+        if self.edge_mm is not None and not (np.isfinite(self.edge_mm) and self.edge_mm >= 0):
+            raise ValueError(f"paint edge_mm must be >= 0, got {self.edge_mm!r}")
         if not 0.0 <= self.base_grey <= 1.0:
             raise ValueError(f"paint base_grey must be in [0, 1], got {self.base_grey!r}")
 
@@ -267,8 +273,9 @@ def pattern(paint: Paint, shape: tuple) -> np.ndarray:
     interpolant, periodic over ``shape``)."""
     from scenes.speckle import speckle_pattern
 
+    smoothing = None if paint.edge_mm is None else paint.edge_mm / paint.texel
     return speckle_pattern(tuple(shape), paint.speckle_mm / paint.texel, density=paint.density,
-                           contrast=paint.contrast, mean=paint.mean, seed=paint.seed)
+                           contrast=paint.contrast, mean=paint.mean, seed=paint.seed, smoothing_texels=smoothing)
 
 
 def texture(paint: Paint, shape: tuple, origin_mm) -> np.ndarray:

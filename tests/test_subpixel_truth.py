@@ -112,3 +112,16 @@ def test_a_cubic_spline_through_the_photographs_pixels_fails_the_check(monkeypat
     monkeypatch.setattr(scenes.image_texture, "UPSAMPLE", 1)
     r = photo_phase_errors(_periodic_photo(), [(0.75, 0.25)])[0]
     assert r["render_rms_px"] > RENDER_GOAL_PX, r
+
+
+def test_a_sharp_paint_aliases_without_optics_and_the_lens_diffraction_low_passes_it():
+    """Speckle aliasing is physical, and the optics decide it (noise-free motion error over sub-pixel phases):
+    sharp-edged 5 px speckles (0.1 px edges) through ideal optics are measured more than 0.01 px wrong; through
+    the diffraction of f/8 (3.45 um pixels) under a quarter of that; soft speckles at f/8 under 0.001 px."""
+    from workbench.experiments.subpixel import aliasing_study
+
+    rows = {(r["edge"], r["f_number"]): r["worst_rms_px"]
+            for r in aliasing_study(speckles_px=(5.0,), f_numbers=(None, 8.0), phases_px=[(0.25, 0.0), (0.5, 0.5)])}
+    assert rows[("sharp", None)] > 0.01
+    assert rows[("sharp", 8.0)] < 0.25 * rows[("sharp", None)]
+    assert rows[("soft", 8.0)] < RENDER_GOAL_PX

@@ -76,6 +76,10 @@ class RenderConfig:
                                        "(pinhole: exact coverage, Gauss-Legendre quadrature of the speckle; else "
                                        "Mitsuba at spp), 'mitsuba' always Monte Carlo at spp",
                                choices=("auto", "mitsuba"))
+    supersample: int = _f(1, "speckle states: pixels rendered supersample x supersample finer, then the lens' "
+                             "diffraction and each block's mean, so the optics low-pass a sharp paint before the "
+                             "pixels sample it as in a camera (1: the box-filtered pixels, enough for soft speckle "
+                             "edges)", min=1, max=8)
 
 
 @dataclass(frozen=True)
@@ -88,6 +92,10 @@ class SpeckleConfig:
     density: float = _f(0.5, "fraction of the surface covered by speckles (0.4-0.6 typical)", min=0.05, max=0.95)
     contrast: float = _f(1.0, "pattern contrast relative to the default (grey std 30 of mean 128 in 2-D, "
                               "0.8 of the radiance range in 3-D)", min=0.05, max=1.2)
+    edge_px: float | None = _f(None, "specimen scenarios: the painted speckles' edge width (Gaussian sigma) in px at "
+                                     "the working distance (absent: speckle / 6, soft edges as sprayed paint has); a "
+                                     "sharp paint (0.1 px) aliases unless the lens' diffraction low-pass it",
+                               min=0.02, max=10.0)
 
 
 @dataclass(frozen=True)

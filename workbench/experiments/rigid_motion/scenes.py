@@ -35,6 +35,7 @@ from scenes.drift import CameraDrift, drifted_pose
 from scenes.illumination import IlluminationChange
 from scenes.motion import STAGE_UP_WORLD, StageErrors, stage_direction, stage_poses, stage_states_mm
 from scenes.noise import SensorNoise, to_image_dtype
+from scenes.optics import Optics
 from scenes.render import render_view
 from scenes.specimens import BendingSpecimen
 from scenes.truth import (defocus_blur_px, focal_length_for_focus_mm, in_focus_points_world_mm,
@@ -354,7 +355,8 @@ def render_stereo_states(truth, surfaces_of_state, n_states: int, out_dir: Path,
                          seed: int, desc: str, progress: bool = True, drift: CameraDrift | None = None,
                          illumination: IlluminationChange | None = None, mc_target_grey: float | None = None,
                          mc_log: list | None = None, renderer: str = "auto",
-                         render_log: list | None = None, optics=None) -> list[dict[str, str]]:
+                         render_log: list | None = None, optics=None, supersample: int = 1
+                         ) -> list[dict[str, str]]:
     """Render every state in both cameras as 8-bit ``left_KK.png`` / ``right_KK.png`` (atomic writes).
 
     ``truth`` provides ``specs`` and ``camera_poses``; ``surfaces_of_state(k)`` the scene of state k. One seed per
@@ -370,7 +372,9 @@ def render_stereo_states(truth, surfaces_of_state, n_states: int, out_dir: Path,
     measured noise and sample counts are appended to ``mc_log``. ``render_log`` gets one entry per image: which
     renderer made it (with the share of pixels made without Monte Carlo), and why Mitsuba did where ``"auto"``
     fell back. ``optics`` (:class:`scenes.optics.Optics`): the lens' diffraction on every render, before the
-    illumination change and the sensor. Returns the file names per state.
+    illumination change and the sensor; ``supersample``: every view is rendered that many times finer along each
+    axis (:meth:`scenes.camera.SensorSpec.supersampled`) and brought back through ``optics`` (binned). Returns the
+    file names per state.
     """
     from scenes.exact_render import RENDERER_IN_FOCUS, RENDERER_OCCLUSION, NotExactError, render_view_exact
 
@@ -382,7 +386,7 @@ def render_stereo_states(truth, surfaces_of_state, n_states: int, out_dir: Path,
         surfaces = surfaces_of_state(k)
         names = {}
         poses = {side: drifted_pose(*truth.camera_poses[side], drift, k, camera=side) for side in SIDES}
-        views = [(truth.specs[side], poses[side]) for side in SIDES]
+        views = [(truth.specs[side].supersampled(supersample), poses[side]) for side in SIDES]
         auto, exact, fallback = None, None, None
         if renderer == "auto" and mc_target_grey is not None:
             from scenes.adaptive import AdaptiveSettings, render_views_auto
@@ -411,7 +415,7 @@ def render_stereo_states(truth, surfaces_of_state, n_states: int, out_dir: Path,
             elif exact is not None:
                 rendered, made_by = exact[c][0], exact[c][1]["renderer"]
             elif adaptive is None:
-                rendered = render_view(truth.specs[side], *poses[side], surfaces, spp=spp, seed=image_seed,
+                rendered = render_view(views[c][0], *poses[side], surfaces, spp=spp, seed=image_seed,
                                        exposure_grey=EXPOSURE_GREY[8]).image_grey
                 made_by = "mitsuba"
             else:
@@ -422,7 +426,9 @@ def render_stereo_states(truth, surfaces_of_state, n_states: int, out_dir: Path,
                 mc_log.append({"state": k, "camera": side, **mc})
             if render_log is not None:
                 render_log.append({"state": k, "camera": side, "renderer": made_by, **entry})
-            image = rendered if optics is None else optics.apply(rendered)
+            if optics is not None or supersample > 1:
+                rendered = (optics or Optics()).apply(rendered, supersample)
+            image = rendered
             image = image if illumination is None else illumination.apply(image, k)
             # Reconstruction-filter and Monte-Carlo ringing can dip a dark pixel a little below 0; a sensor holds no
             # negative charge, and shot noise needs the exposure >= 0.

@@ -247,9 +247,13 @@ def build_specimen(scenario) -> BuiltSpecimen:
         rigid.append((np.eye(3), np.array([dx, dy, 0.0]) * footprint_mm))
         labels.append(f"static: state 0 moved by ({dx:g}, {dy:g}) px in its plane, new noise")
     speckle_px = 5.0 if scenario.speckle.size_px is None else scenario.speckle.size_px
-    paint = Paint(kind=cfg.paint, method=cfg.paint_method,
-                  speckle_mm=cfg.speckle_mm if cfg.speckle_mm is not None else speckle_px * footprint_mm,
-                  texel_mm=cfg.texel_mm, density=scenario.speckle.density, contrast=0.8 * scenario.speckle.contrast,
+    speckle_mm = cfg.speckle_mm if cfg.speckle_mm is not None else speckle_px * footprint_mm
+    edge_mm = None if scenario.speckle.edge_px is None else scenario.speckle.edge_px * footprint_mm
+    texel_mm = cfg.texel_mm
+    if texel_mm is None and edge_mm is not None:
+        texel_mm = min(speckle_mm / 5.0, 2.0 * edge_mm)        # a sharp edge needs samples as fine as itself
+    paint = Paint(kind=cfg.paint, method=cfg.paint_method, speckle_mm=speckle_mm, edge_mm=edge_mm,
+                  texel_mm=texel_mm, density=scenario.speckle.density, contrast=0.8 * scenario.speckle.contrast,
                   checker_mm=cfg.checker_mm, direction=tuple(cfg.paint_direction), axis_point_mm=cfg.axis_point_mm,
                   axis_direction=cfg.axis_direction, max_angle_deg=cfg.max_paint_angle_deg, base_grey=cfg.base_grey,
                   seed=scenario.seed)
@@ -337,7 +341,7 @@ def render_specimen(scenario, out_dir, *, progress: bool = True, overwrite: bool
     truth.files = render_stereo_states(
         truth, lambda k: truth.specimen.surfaces(k, *truth.pose), K, out_dir, noise, spp=r.spp, seed=scenario.seed,
         desc=f"rendering {src.name}", progress=progress, renderer=r.speckle_renderer, render_log=render_log,
-        mc_log=mc_log, mc_target_grey=mc_target, optics=optics)
+        mc_log=mc_log, mc_target_grey=mc_target, optics=optics, supersample=r.supersample)
     truth.info.update(render_info(rig, scenario.rig.scale, r.spp, scenario.seed, r.read_noise_grey, mc_target, mc_log,
                                   render_log, optics))
     for path in sources:

@@ -44,7 +44,16 @@ class PlateScene:
     ``size_px`` pixels a side; the plate covers them with a margin. The paint's speckle is ``speckle_px`` at the
     plate. ``texel_px`` is the pattern's sample spacing (None: the paint's default, speckle / 5); ``lookup_factor``
     overrides the paint's (1: the pattern itself is looked up, as before issue 38; with ``texel_px = 1 / 3.5`` that
-    is the paper's planar specimens' texture, :meth:`scenes.specimens.SpeckledPlate.for_pixel_size`)."""
+    is the paper's planar specimens' texture, :meth:`scenes.specimens.BendingSpecimen.for_pixel_size`). ``edge_px``:
+    the speckles' edge width (None: speckle / 6; the pattern is then sampled at ``min(speckle / 5, 2 edge)``);
+    ``f_number``: the lens' diffraction on pixels of ``pixel_pitch_mm`` (None: ideal optics), the view rendered
+    ``supersample`` times finer first (:func:`render`)."""
+
+    @property
+    def optics(self):
+        from scenes.optics import Optics
+
+        return Optics(f_number=self.f_number, pixel_pitch_mm=self.pixel_pitch_mm)
 
     size_px: int = 96
     fx_px: float = 8000.0
@@ -55,6 +64,10 @@ class PlateScene:
     texel_px: float | None = None
     alpha_deg: float = 0.0
     k1: float = 0.0
+    edge_px: float | None = None
+    f_number: float | None = None
+    supersample: int = 1
+    pixel_pitch_mm: float = 0.00345
 
     @property
     def footprint_mm(self) -> float:
@@ -71,8 +84,12 @@ class PlateScene:
         return replace(thin, focal_length_mm=F)
 
     def paint(self) -> Paint:
-        texel = None if self.texel_px is None else self.texel_px * self.footprint_mm
-        return Paint(speckle_mm=self.speckle_px * self.footprint_mm, texel_mm=texel, seed=self.seed)
+        texel_px = self.texel_px
+        if texel_px is None and self.edge_px is not None:
+            texel_px = min(self.speckle_px / 5.0, 2.0 * self.edge_px)
+        texel = None if texel_px is None else texel_px * self.footprint_mm
+        edge = None if self.edge_px is None else self.edge_px * self.footprint_mm
+        return Paint(speckle_mm=self.speckle_px * self.footprint_mm, texel_mm=texel, edge_mm=edge, seed=self.seed)
 
     def plate(self):
         """(vertices (4, 3) mm at rest, faces, paint layout) of the plate, 30 % larger than the view."""
@@ -136,19 +153,26 @@ def render(scene: PlateScene, path: str, offset_px=(0.0, 0.0), *, exposure_grey:
     surfaces = scene.surfaces(offset_px)
     pose = (np.eye(3), np.zeros(3))
     q = {"exposure_grey": exposure_grey, "quadrature_order": quadrature_order or QUADRATURE_ORDER}
+    s = scene.supersample
+
+    def recorded(image):
+        return scene.optics.apply(image, s) if (s > 1 or scene.f_number is not None) else image.astype(float)
+
     if path == "quadrature":
-        return render_view_exact(scene.spec(), *pose, surfaces, **q)[0].astype(float)
+        return recorded(render_view_exact(scene.spec().supersampled(s), *pose, surfaces, **q)[0])
     if path == "occlusion":
-        image, known, _ = render_view_occluded(scene.spec(), *pose, surfaces, **q)
+        image, known, _ = render_view_occluded(scene.spec().supersampled(s), *pose, surfaces, **q)
     elif path == "thin lens in focus":
-        image, known, _ = render_view_in_focus(scene.spec("thin"), *pose, surfaces, **q)
+        image, known, _ = render_view_in_focus(scene.spec("thin").supersampled(s), *pose, surfaces, **q)
     elif path == "mitsuba":
-        return render_views_adaptive([(scene.spec(), pose)], surfaces, seed=seed, exposure_grey=exposure_grey,
-                                     settings=AdaptiveSettings(target_mc_grey=mitsuba_target_grey))[0] \
-            .image_grey.astype(float)
+        return recorded(render_views_adaptive([(scene.spec().supersampled(s), pose)], surfaces, seed=seed,
+                                              exposure_grey=exposure_grey,
+                                              settings=AdaptiveSettings(target_mc_grey=mitsuba_target_grey))[0]
+                        .image_grey)
     else:
         raise ValueError(f"render path {path!r}: choose one of {', '.join(PATHS)}")
-    inner = known[EDGE_PX:-EDGE_PX, EDGE_PX:-EDGE_PX]
+    e = EDGE_PX * s
+    inner = known[e:-e, e:-e]
     if not inner.all():
         raise ValueError(f"the {path} path left {int((~inner).sum())} pixels of the plate's view to Monte Carlo")
     # The image's outermost pixels, which no subset reaches, take their nearest known neighbour's value: a jump to
@@ -156,7 +180,7 @@ def render(scene: PlateScene, path: str, offset_px=(0.0, 0.0), *, exposure_grey:
     from scipy.ndimage import distance_transform_edt
 
     _, (r, c) = distance_transform_edt(~known, return_indices=True)
-    return image.astype(float)[r, c]
+    return recorded(image.astype(float)[r, c])
 
 
 def dic_displacements(reference: np.ndarray, deformed: np.ndarray, subset_px: int = 25, step_px: int = 6,
@@ -193,6 +217,9 @@ def phase_errors(scene: PlateScene, path: str, phases_px, *, reference_side: int
     |d|, px), the motion error (DIC render at rest -> render moved, minus the motion) and the instrument alone
     (the same on the references), against :func:`true_motion_px`. Both renders of a phase are one path's;
     ``render_options`` go to :func:`render`."""
+    if scene.f_number is not None:
+        raise ValueError("phase_errors: the converged reference has ideal optics; use motion_errors for a scene "
+                         "with a diffraction")
     ref0 = converged_reference(scene, (0.0, 0.0), side=reference_side)
     img0 = render(scene, path, (0.0, 0.0), **render_options)
     rows = []
@@ -211,6 +238,44 @@ def phase_errors(scene: PlateScene, path: str, phases_px, *, reference_side: int
                      "instrument_alone_rms_px": _rms(d_alone), "points": int(len(d_render)),
                      "grey_rms_vs_reference": float(np.sqrt(np.mean((img - ref)[8:-8, 8:-8] ** 2)))})
     return rows
+
+
+def motion_errors(scene: PlateScene, path: str, phases_px, **render_options) -> list[dict]:
+    """For each (x, y) phase: the motion error alone (DIC from the render at rest to the render moved, minus
+    :func:`true_motion_px`): RMS, mean (px) and the points; any optics (no converged reference needed)."""
+    img0 = render(scene, path, (0.0, 0.0), **render_options)
+    rows = []
+    for phase in phases_px:
+        phase = (float(phase[0]), float(phase[1]))
+        img = render(scene, path, phase, **render_options) if phase != (0.0, 0.0) else img0
+        xy, d = dic_displacements(img0, img, points=True)
+        d = d - true_motion_px(scene, xy, phase)
+        rows.append({"phase_px": list(phase), "motion_rms_px": _rms(d), "motion_mean_px": d.mean(axis=0).tolist(),
+                     "points": int(len(d))})
+    return rows
+
+
+def aliasing_study(speckles_px=(2.0, 3.0, 5.0), edges=("soft", "sharp"), f_numbers=(None, 4.0, 8.0, 16.0),
+                   phases_px=None, supersample: int = 4, sharp_edge_px: float = 0.1, size_px: int = 96) -> list[dict]:
+    """Speckle aliasing as an error source: the motion error (noise-free, quadrature, :func:`motion_errors`) of a
+    plate moved by k/8 px along x and (0.5, 0.5), per speckle size, paint edge (``"soft"``: speckle / 6;
+    ``"sharp"``: ``sharp_edge_px``) and f-number (None: ideal optics; diffraction at 550 nm on 3.45 um pixels),
+    rendered ``supersample`` times finer so the optics act before the pixels sample. Returns one row per case with
+    the worst RMS over the phases and the largest |mean| (the S-curve's amplitude)."""
+    phases_px = phases_px or [(k / 8.0, 0.0) for k in range(1, 8)] + [(0.5, 0.5)]
+    out = []
+    for speckle in speckles_px:
+        for edge in edges:
+            for f_number in f_numbers:
+                scene = PlateScene(size_px=size_px, speckle_px=float(speckle), f_number=f_number,
+                                   supersample=supersample, edge_px=sharp_edge_px if edge == "sharp" else None)
+                rows = motion_errors(scene, "quadrature", phases_px)
+                out.append({"speckle_px": float(speckle), "edge": edge, "f_number": f_number,
+                            "airy_radius_px": scene.optics.airy_radius_px,
+                            "worst_rms_px": max(r["motion_rms_px"] for r in rows),
+                            "worst_mean_px": max(max(abs(v) for v in r["motion_mean_px"]) for r in rows),
+                            "rows": rows})
+    return out
 
 
 def _rms(d: np.ndarray) -> float:
@@ -258,5 +323,5 @@ def photo_phase_errors(photo: np.ndarray, phases_px, margin_px: int = 24) -> lis
                      "points": int(len(d_render))})
     return rows
 
-__all__ = ["PATHS", "PlateScene", "converged_reference", "dic_displacements", "fourier_shift", "phase_errors",
-           "photo_phase_errors", "render", "true_motion_px"]
+__all__ = ["PATHS", "PlateScene", "converged_reference", "aliasing_study", "dic_displacements", "fourier_shift",
+           "motion_errors", "phase_errors", "photo_phase_errors", "render", "true_motion_px"]
