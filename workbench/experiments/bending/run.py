@@ -30,7 +30,8 @@ from measurement.strain import surface_strain, virtual_strain_gauge_px
 from workbench.experiments.bending.scenes import BENDING_LOADS_N, load_bending_truth, render_bending
 from workbench.experiments.calibration.run import render_content, mc_summary
 from workbench.experiments.rigid_motion.run import face_roi, finite_or_none, rig_for_name
-from workbench.experiments.rigid_motion.scenes import known_fraction_range, speckle_render_content
+from workbench.experiments.rigid_motion.scenes import known_fraction_range, paper_optics, speckle_render_content
+from workbench.rigs import get_rig
 from workbench.store import dataset_record, stored_render
 from workbench.points_with_truth import Alignment, write_alignment, write_points_readme, write_points_with_truth
 from workbench.rigs import scheimpflug_design_report
@@ -140,9 +141,11 @@ def reproduce_bending(out_dir: str | Path, *, scale: float = 1.0, rig_name: str 
                **render_content(spp, mc_target_grey), **speckle_render_content(renderer, lens, mc_target_grey),
                "read_noise_grey": float(noise_grey), "loads_N": [float(v) for v in loads],
                "fe": "ThreePointBending defaults/1"}
+    optics = paper_optics(get_rig(rig_name, scale))
+    content["optics"] = optics.to_dict()
     images, _ = stored_render("bending", content, lambda folder: render_bending(
         rig_name, folder, scale=scale, lens=lens, spp=spp, seed=seed, noise_grey=noise_grey, loads_N=loads,
-        progress=progress, overwrite=True, mc_target_grey=mc_target_grey, renderer=renderer), store)
+        progress=progress, overwrite=True, mc_target_grey=mc_target_grey, renderer=renderer, optics=optics), store)
     truth = load_bending_truth(images)
     settings = DICSettings(subset_size=subset_size, step=step, order=2)
     roi = _overlap_roi(truth, face_roi(_FacePoses(truth), subset_size // 2), subset_size // 2, step)

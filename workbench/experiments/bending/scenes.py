@@ -180,7 +180,7 @@ def render_bending(rig: StereoRig | str, out_dir, scale: float = 1.0, lens: str 
                    seed: int = 0, noise_grey: float = 1.0, loads_N=BENDING_LOADS_N, *, f_number: float | None = None,
                    specimen: BendingSpecimen | None = None, beam: ThreePointBending | None = None,
                    progress: bool = True, overwrite: bool = False, mc_target_grey: float | None = None,
-                   renderer: str = "auto") -> BendingTruth:
+                   renderer: str = "auto", optics=None) -> BendingTruth:
     """Render every load state in both cameras: ``left_KK.png``, ``right_KK.png``, ``truth.json`` and
     ``manifest.json`` (truth and manifest last: a folder with a manifest is complete).
 
@@ -195,6 +195,7 @@ def render_bending(rig: StereoRig | str, out_dir, scale: float = 1.0, lens: str 
     loads_N : state 0 is the reference (default: 20 N, then 200 -> 2000 N by 200 N)
     overwrite : replace an earlier dataset in ``out_dir`` (deletes exactly the files its manifest lists); without
         it such a folder is refused (:class:`workbench.manifest.DatasetFolderError`)
+    optics : :class:`scenes.optics.Optics`, optional; the lens' diffraction (None: ideal optics)
     """
     rig, rig_scale = resolve_rig(rig, scale)
     if spp < 1:
@@ -211,9 +212,10 @@ def render_bending(rig: StereoRig | str, out_dir, scale: float = 1.0, lens: str 
     files = render_stereo_states(
         truth, lambda k: truth.specimen.surfaces(*truth.pose, texture=texture, displacement_mm=truth.field(k)),
         len(truth.loads_N), out_dir, noise, spp=spp, seed=seed, desc=f"rendering bending ({lens})", progress=progress,
-        mc_target_grey=mc_target_grey, mc_log=mc_log, renderer=renderer, render_log=render_log)
+        mc_target_grey=mc_target_grey, mc_log=mc_log, renderer=renderer, render_log=render_log, optics=optics)
     truth.files = files
-    truth.info.update(render_info(rig, rig_scale, spp, seed, noise_grey, mc_target_grey, mc_log, render_log))
+    truth.info.update(render_info(rig, rig_scale, spp, seed, noise_grey, mc_target_grey, mc_log, render_log,
+                                  optics))
     atomic_write_text(out_dir / "truth.json", json.dumps(_truth_to_json(truth), indent=1))   # after every image
     complete_folder(out_dir, "bending", [n for names in files for n in names.values()] + ["truth.json"],
                     {"rig": rig.name, "scale": rig_scale, "lens": lens, **truth.info["render"],

@@ -26,8 +26,8 @@ from measurement.stereo_dic import StereoMatchError, measure_state, reference_sh
 from measurement.stereo_io import write_state_vtk
 from scenes.motion import stage_states_mm
 from workbench.experiments.calibration.run import render_content, mc_summary
-from workbench.experiments.rigid_motion.scenes import (known_fraction_range, load_truth, render_rigid_motion,
-                                                       speckle_render_content)
+from workbench.experiments.rigid_motion.scenes import (known_fraction_range, load_truth, paper_optics,
+                                                       render_rigid_motion, speckle_render_content)
 from workbench.manifest import save_figure
 from workbench.store import dataset_record, stored_render
 from workbench.points_with_truth import Alignment, write_alignment, write_points_readme, write_points_with_truth
@@ -226,9 +226,11 @@ def reproduce_rigid_motion(out_dir: str | Path, *, scale: float = 1.0, calib: st
     content = {"experiment": "rigid-motion", "rig": "paper", "scale": float(scale), "lens": lens, "seed": seed,
                **render_content(spp, mc_target_grey), **speckle_render_content(renderer, lens, mc_target_grey),
                "read_noise_grey": 1.0, "states_mm": [float(v) for v in wanted]}
+    optics = paper_optics(get_rig("paper", scale))
+    content["optics"] = optics.to_dict()
     images, _ = stored_render("rigid-motion", content, lambda folder: render_rigid_motion(
         "paper", folder, scale=scale, lens=lens, spp=spp, seed=seed, states=wanted, progress=progress,
-        overwrite=True, mc_target_grey=mc_target_grey, renderer=renderer), store)
+        overwrite=True, mc_target_grey=mc_target_grey, renderer=renderer, optics=optics), store)
     truth = load_truth(images)
     m = measure_rigid_motion(truth, images, rig, subset_size=subset_size, step=step, points_dir=out_dir / "points",
                              progress=progress)

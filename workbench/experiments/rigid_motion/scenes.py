@@ -338,6 +338,12 @@ def resolve_rig(rig: StereoRig | str, scale: float) -> tuple[StereoRig, float | 
 SPECKLE_RENDERERS = ("auto", "mitsuba")
 
 
+def paper_optics(rig: StereoRig, f_number: float = DEFAULT_F_NUMBER):
+    """The lens' diffraction of the paper's experiments (:class:`scenes.optics.Optics`): f/8, 550 nm, the rig's
+    pixels."""
+    return Optics(f_number=f_number, pixel_pitch_mm=rig.pixel_pitch_mm)
+
+
 def speckle_render_content(renderer: str, lens: str, mc_target_grey: float | None = None) -> dict:
     """How the speckle renderer enters a stored dataset's content hash: nothing where every image is Mitsuba's
     (``"mitsuba"``, or a thin lens at a fixed spp, which ``"auto"`` leaves to Mitsuba), so those datasets keep
