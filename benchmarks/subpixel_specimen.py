@@ -7,7 +7,7 @@ instrument's 2-D DIC (subset 33, step 8, second order, biquintic) on the left im
 measurable part of the reference. Each point's error (measured minus true ``uv_left_px``) is binned by the distance
 of its true motion from the nearest whole pixel, per component; the static state's error is the floor.
 
-    .venv/bin/python benchmarks/subpixel_specimen.py [--name plate_with_hole] [--scale 0.25] [--subset 33]
+    .venv/bin/python benchmarks/subpixel_specimen.py [--name plate_with_hole] [--scale 0.25] [--lens thin]
 """
 from __future__ import annotations
 
@@ -28,6 +28,8 @@ def main() -> None:
     ap.add_argument("--scale", type=float, default=0.25)
     ap.add_argument("--subset", type=int, default=33)
     ap.add_argument("--step", type=int, default=8)
+    ap.add_argument("--lens", choices=("pinhole", "thin"), default="pinhole",
+                    help="the rig's lens model (thin: f/8, focused on the specimen)")
     args = ap.parse_args()
 
     from measurement.dic import DICSettings, correlate
@@ -45,15 +47,16 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         fe_dir = Path(tmp) / "fe"
         pvd = write_pvd(CATALOG[args.name](), fe_dir)
-        (fe_dir / "scenario.toml").write_text(scenario_text(args.name, pvd.name, args.scale,
-                                                            rigid_tour_extras(args.scale)))
+        text = scenario_text(args.name, pvd.name, args.scale, rigid_tour_extras(args.scale))
+        (fe_dir / "scenario.toml").write_text(text.replace("[rig]\n", f'[rig]\nlens = "{args.lens}"\n', 1))
         scenario = with_specimen_paths(load_config(Scenario, fe_dir / "scenario.toml"), fe_dir)
         key, content = dataset_parts(scenario)["states"]
         images, reused = DatasetStore().ensure("specimen", key, content,
                                                lambda f: render_specimen(scenario, f, progress=True, overwrite=True))
     truth = load_specimen_truth(images)
     dataset = open_dataset(images)
-    print(f"machine: {platform.platform()}; {args.name}, scale {args.scale:g}, dataset {images} "
+    print(f"machine: {platform.platform()}; {args.name}, scale {args.scale:g}, {args.lens} lens, f/8 diffraction, "
+          f"dataset {images} "
           f"({'reused' if reused else 'rendered'}); 2-D DIC subset {args.subset}, step {args.step}, order 2")
     settings = DICSettings(subset_size=args.subset, step=args.step, order=2)
     reference = read_grey(dataset.images[0]["left"])
@@ -88,7 +91,8 @@ def main() -> None:
     print("| | within 0.1 px of a whole pixel | 0.2-0.3 px | 0.4-0.5 px | static (moved (0.5, 0.5) px) |")
     print("|---|---|---|---|---|")
     floor = "—" if static is None else f"{static[0]:.4f} / {static[1]:.4f}"
-    print(f"| {args.name}, scale {args.scale:g} (u / v, points) | " + " | ".join(cells) + f" | {floor} |")
+    print(f"| {args.name}, scale {args.scale:g}, {args.lens} (u / v, points) | " + " | ".join(cells)
+          + f" | {floor} |")
 
     # What is measurable: the instrument alone on the reference moved by an exact (band-limited) shift, with fresh
     # sensor noise of the scenario's model, on the same points.

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from scipy import integrate, special
 
-from scenes.optics import Optics, airy_radius_px, apply_diffraction, diffraction_otf
+from scenes.optics import Optics, airy_radius_px, apply_optics, diffraction_otf
 
 F_NUMBER, WAVELENGTH_NM, PITCH_MM = 8.0, 550.0, 0.00345
 
@@ -43,7 +43,7 @@ def test_a_cosine_image_keeps_its_shape_and_loses_the_airy_transforms_share_of_i
     nu = k / (2 * cols)
     x = np.arange(cols)
     image = 100.0 + 50.0 * np.cos(np.pi * k * (x + 0.5) / cols)[None, :].repeat(rows, axis=0)
-    out = apply_diffraction(image, F_NUMBER, WAVELENGTH_NM, PITCH_MM)
+    out = apply_optics(image, F_NUMBER, WAVELENGTH_NM, PITCH_MM)
     expected = 100.0 + 50.0 * _airy_otf_by_hankel(nu) * (image - 100.0) / 50.0
     assert np.abs(out - expected).max() < 2e-3 * 50.0
 
@@ -51,7 +51,7 @@ def test_a_cosine_image_keeps_its_shape_and_loses_the_airy_transforms_share_of_i
 def test_supersampled_render_is_binned_to_the_sensors_pixels():
     """A 4x supersampled flat image comes back flat at the sensor's size; ideal optics only bin."""
     fine = np.full((32, 40), 77.0)
-    out = apply_diffraction(fine, F_NUMBER, WAVELENGTH_NM, PITCH_MM, supersample=4)
+    out = apply_optics(fine, F_NUMBER, WAVELENGTH_NM, PITCH_MM, supersample=4)
     assert out.shape == (8, 10) and np.allclose(out, 77.0, atol=1e-9)
     ramp = np.arange(32 * 40, dtype=float).reshape(32, 40)
     assert np.allclose(Optics().apply(ramp, supersample=4), ramp.reshape(8, 4, 10, 4).mean(axis=(1, 3)))
@@ -62,6 +62,37 @@ def test_bad_optics_input_is_refused_by_name():
     with pytest.raises(ValueError, match="f_number must be a positive number, got 0"):
         Optics(f_number=0)
     with pytest.raises(ValueError, match="not a whole number of 4 x 4 blocks"):
-        apply_diffraction(np.zeros((10, 12)), 8.0, supersample=4)
+        apply_optics(np.zeros((10, 12)), 8.0, supersample=4)
     with pytest.raises(ValueError, match="must be a finite 2-D array"):
-        apply_diffraction(np.full((4, 4), np.nan), 8.0)
+        apply_optics(np.full((4, 4), np.nan), 8.0)
+
+
+def _box_mean(f, centres, width):
+    """Mean of f over [c - width/2, c + width/2] for each centre, by adaptive quadrature."""
+    return np.array([integrate.quad(f, c - width / 2, c + width / 2)[0] / width for c in centres])
+
+
+@pytest.mark.parametrize("fill", [0.5, 0.8])
+def test_a_smaller_pixel_aperture_records_the_scene_averaged_over_that_aperture(fill):
+    """A render of a cosine scene (each pixel its whole-area mean) through pixels of aperture ``fill`` comes out as
+    the scene's mean over the smaller aperture, integrated independently (1e-3 of the amplitude, 4 px from the
+    edges), with no diffraction."""
+    n, k = 64, 19
+    scene = lambda x: np.cos(np.pi * k * (x + 0.5) / n)                     # noqa: E731
+    x = np.arange(n, dtype=float)
+    rendered = np.repeat(_box_mean(scene, x, 1.0)[None, :], 8, axis=0)
+    recorded = apply_optics(rendered, None, fill_factor=fill)
+    expected = _box_mean(scene, x, fill)
+    assert np.abs(recorded[:, 4:-4] - expected[None, 4:-4]).max() < 1e-3
+
+
+def test_a_sensor_mtf_table_scales_each_frequency_by_its_interpolated_value():
+    """A measured MTF of (0.25, 0.8), (0.5, 0.5): a cosine at 0.15 cycles/px keeps 1 - 0.2 * 0.6 = 0.88 of its
+    amplitude (linear between 1 at 0 and 0.8 at 0.25)."""
+    n, k = 80, 24
+    x = np.arange(n)
+    image = np.repeat((10.0 * np.cos(np.pi * k * (x + 0.5) / n))[None, :], 6, axis=0)
+    out = apply_optics(image, None, sensor_mtf=((0.25, 0.8), (0.5, 0.5)))
+    assert np.abs(out - 0.88 * image).max() < 1e-9 * 10
+    with pytest.raises(ValueError, match="sensor_mtf must be"):
+        apply_optics(image, None, sensor_mtf=((0.5, 0.5), (0.25, 0.8)))

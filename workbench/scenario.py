@@ -52,6 +52,9 @@ class RigConfig:
     diffraction: bool = _f(True, "the lens diffracts (Airy pattern of radius 1.22 wavelength f_number, any lens model, "
                                  "pinhole included): a rendered image is what the camera records (false: ideal optics)")
     wavelength_nm: float = _f(550.0, "light wavelength for the diffraction, nm", min=300.0, max=1100.0)
+    pixel_fill_factor: float = _f(1.0, "the pixels' light-collecting aperture, a square of this fraction of the pitch "
+                                       "(1: the whole pixel, as microlenses make it; smaller apertures alias more)",
+                                  min=0.1, max=1.0)
 
 
 @dataclass(frozen=True)
@@ -342,7 +345,7 @@ def optics_of(scenario: Scenario, pixel_pitch_mm: float):
 
     rig = scenario.rig
     return Optics(f_number=rig.f_number if rig.diffraction else None, wavelength_nm=rig.wavelength_nm,
-                  pixel_pitch_mm=pixel_pitch_mm)
+                  pixel_pitch_mm=pixel_pitch_mm, fill_factor=rig.pixel_fill_factor)
 
 
 def file_sha256(path: str) -> str | None:

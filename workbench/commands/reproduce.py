@@ -59,6 +59,9 @@ def add_parser(sub) -> None:
     rm.add_argument("--seed", type=seed_arg, default=0)
     rm.add_argument("--spp", type=positive_int_arg, default=64)
     add_speckle_renderer_option(rm)
+    rm.add_argument("--f-number", type=positive_float_arg, default=8.0,
+                    help="the lens' aperture for its diffraction on the speckle states (default 8)")
+    rm.add_argument("--ideal-optics", action="store_true", help="no diffraction (the images as rendered)")
     rm.add_argument("--subset", type=subset_arg, default=65)
     rm.add_argument("--step", type=positive_int_arg, default=5)
     rm.add_argument("--store", type=Path, default=None,
@@ -75,6 +78,9 @@ def add_parser(sub) -> None:
     bd.add_argument("--seed", type=seed_arg, default=0)
     bd.add_argument("--spp", type=positive_int_arg, default=64)
     add_speckle_renderer_option(bd)
+    bd.add_argument("--f-number", type=positive_float_arg, default=8.0,
+                    help="the lens' aperture for its diffraction on the speckle states (default 8)")
+    bd.add_argument("--ideal-optics", action="store_true", help="no diffraction (the images as rendered)")
     bd.add_argument("--noise-grey", type=non_negative_float_arg, default=1.0)
     bd.add_argument("--subset", type=subset_arg, default=65)
     bd.add_argument("--step", type=positive_int_arg, default=5)
@@ -116,6 +122,8 @@ def add_parser(sub) -> None:
                     help="Monte-Carlo noise target of the adaptive renders, grey RMS (default 0.3)")
     pp.add_argument("--seed", type=seed_arg, default=0)
     pp.add_argument("--strict", action="store_true", help="exit 1 when a goal figure is not met")
+    pp.add_argument("--ideal-optics", action="store_true",
+                    help="render the speckle states without the lens' diffraction (default: f/8, 550 nm)")
     pp.add_argument("--store", type=Path, default=None,
                     help="dataset store (renders by content hash); default $WORKBENCH_STORE or ~/.cache/...")
     pp.add_argument("--out", type=Path, required=True)
@@ -164,7 +172,7 @@ def reproduce_rigid_motion_command(args) -> int:
     output_folder(args.out)
     m = reproduce_rigid_motion(args.out, scale=args.scale, calib=args.calib, lens=args.lens, seed=args.seed,
                                spp=args.spp, subset_size=args.subset, step=args.step, store=args.store,
-                               renderer=args.renderer)
+                               renderer=args.renderer, f_number=None if args.ideal_optics else args.f_number)
     e = m["reference_3d_error_um"]
     print(f"{m['calibration']}: reference 3D error {e['aligned_rms']:.3f} um aligned ({e['unaligned_rms']:.1f} um "
           f"unaligned), {m['points']} points")
@@ -188,7 +196,8 @@ def reproduce_bending_command(args) -> int:
     output_folder(args.out)
     m = reproduce_bending(args.out, scale=args.scale, rig_name=args.rig, lens=args.lens, calib=args.calib,
                           seed=args.seed, spp=args.spp, noise_grey=args.noise_grey, subset_size=args.subset,
-                          step=args.step, window=args.window or None, store=args.store, renderer=args.renderer)
+                          step=args.step, window=args.window or None, store=args.store, renderer=args.renderer,
+                          f_number=None if args.ideal_optics else args.f_number)
     print(f"{m['calibration']}: {m['points']} points, VSG {m['vsg_px']} px")
     for r in m["states"]:
         if "error" in r:
@@ -205,7 +214,7 @@ def reproduce_bending_command(args) -> int:
 def reproduce_paper_command(args) -> int:
     from workbench.experiments.paper.run import PaperSettings, reproduce_paper
 
-    settings = PaperSettings.for_mode(args.quick, args.scale, args.mc_target_grey, args.seed)
+    settings = PaperSettings.for_mode(args.quick, args.scale, args.mc_target_grey, args.seed, args.ideal_optics)
     summary = reproduce_paper(args.out, settings, store=args.store)
     failed = [g for g in summary["goals"] if g["met"] is False]
     return 1 if (args.strict and failed) else 0

@@ -127,11 +127,12 @@ def reproduce_bending(out_dir: str | Path, *, scale: float = 1.0, rig_name: str 
                       subset_size: int = 65, step: int = 5, window: int | None = DEFAULT_STRAIN_WINDOW,
                       loads_N=BENDING_LOADS_N, progress: bool = True, store=None,
                       mc_target_grey: float | None = None, calibration_views: tuple[int, int] = (30, 20),
-                      renderer: str = "auto") -> dict:
+                      renderer: str = "auto", f_number: float | None = 8.0) -> dict:
     """Render (or reuse) the load states, measure them, compute strain, score against truth, write the report.
 
     The load states are rendered into the dataset store (``store``, default
-    :func:`workbench.store.default_store_dir`) under the hash of everything that makes them.
+    :func:`workbench.store.default_store_dir`) under the hash of everything that makes them, recorded through the
+    diffraction of a lens at ``f_number`` (550 nm, the rig's pixels; None: ideal optics).
     """
     out_dir = Path(out_dir)
     loads = np.asarray(loads_N, dtype=float)
@@ -141,8 +142,9 @@ def reproduce_bending(out_dir: str | Path, *, scale: float = 1.0, rig_name: str 
                **render_content(spp, mc_target_grey), **speckle_render_content(renderer, lens, mc_target_grey),
                "read_noise_grey": float(noise_grey), "loads_N": [float(v) for v in loads],
                "fe": "ThreePointBending defaults/1"}
-    optics = paper_optics(get_rig(rig_name, scale))
-    content["optics"] = optics.to_dict()
+    optics = None if f_number is None else paper_optics(get_rig(rig_name, scale), f_number)
+    if optics is not None:                      # ideal-optics datasets keep the hashes they had
+        content["optics"] = optics.to_dict()
     images, _ = stored_render("bending", content, lambda folder: render_bending(
         rig_name, folder, scale=scale, lens=lens, spp=spp, seed=seed, noise_grey=noise_grey, loads_N=loads,
         progress=progress, overwrite=True, mc_target_grey=mc_target_grey, renderer=renderer, optics=optics), store)

@@ -52,18 +52,22 @@ class PaperSettings:
     calibration_views: int = 30
     validation_views: int = 20
     quick: bool = False
+    #: the lens' aperture of the speckle renders, for its diffraction (None: ideal optics)
+    f_number: float | None = 8.0
 
     @classmethod
     def for_mode(cls, quick: bool, scale: float | None = None, mc_target_grey: float | None = None,
-                 seed: int = 0) -> "PaperSettings":
+                 seed: int = 0, ideal_optics: bool = False) -> "PaperSettings":
         """Full resolution, or ``quick``: quarter scale (16x fewer pixels) and renders at 0.5 grey Monte-Carlo
         noise instead of 0.3, the paper's protocol otherwise (with 15 + 10 board views instead of 30 + 20 the
-        stepwise calibration's tilt and principal point drift by many sigma: the views are kept)."""
+        stepwise calibration's tilt and principal point drift by many sigma: the views are kept). The speckle
+        states are recorded through the diffraction of an f/8 lens, or ``ideal_optics``."""
         s = scale if scale is not None else (0.25 if quick else 1.0)
         if not 0 < s <= 1:
             raise ValueError(f"--scale must be in (0, 1], got {s}")
         target = mc_target_grey if mc_target_grey is not None else (QUICK_MC_TARGET_GREY if quick else MC_TARGET_GREY)
-        return cls(scale=s, dof_scale=s, seed=seed, quick=quick, mc_target_grey=float(target))
+        return cls(scale=s, dof_scale=s, seed=seed, quick=quick, mc_target_grey=float(target),
+                   f_number=None if ideal_optics else 8.0)
 
     def stage_settings(self, stage: str) -> dict:
         return {"stage": stage, **asdict(self)}
@@ -106,12 +110,12 @@ def _run_stage(stage: str, folder: Path, s: PaperSettings, store, progress: bool
         from workbench.experiments.rigid_motion.run import reproduce_rigid_motion
         calib = folder.parent / "calibration" / "calibration.json"       # the paper rig's, from stage 1
         return reproduce_rigid_motion(folder, scale=s.scale, calib=str(calib), seed=s.seed, progress=progress,
-                                      store=store, mc_target_grey=s.mc_target_grey)
+                                      store=store, mc_target_grey=s.mc_target_grey, f_number=s.f_number)
     if stage == "bending":
         from workbench.experiments.bending.run import reproduce_bending
         return reproduce_bending(folder, scale=s.scale, calib="rendered", seed=s.seed, progress=progress,
                                  store=store, mc_target_grey=s.mc_target_grey,
-                                 calibration_views=(s.calibration_views, s.validation_views))
+                                 calibration_views=(s.calibration_views, s.validation_views), f_number=s.f_number)
     if stage == "depth_of_field":
         from workbench.experiments.depth_of_field.run import reproduce_depth_of_field
         return reproduce_depth_of_field(folder, scale=s.dof_scale, seed=s.seed, mc_target_grey=s.mc_target_grey)
@@ -201,6 +205,18 @@ def _board_render_text(out_dir: Path) -> str:
     names = {"exact-polygon": "exact box-filtered polygons (scenes.exact_render, no Monte Carlo)",
              "mitsuba": "Mitsuba at fixed spp", "mitsuba-adaptive": "Mitsuba adaptive"}
     return "; ".join(f"{names.get(k, k)}: {v} images" for k, v in sorted(counts.items()))
+
+
+def _optics_text(settings: PaperSettings) -> str:
+    """The lens' diffraction the speckle states were recorded through (scenes.optics), at full-scale pixels."""
+    if settings.f_number is None:
+        return "ideal (no diffraction: --ideal-optics)"
+    from scenes.optics import airy_radius_px
+    from workbench.rigs import DEFAULT_PIXEL_PITCH_MM
+
+    pitch = DEFAULT_PIXEL_PITCH_MM / settings.scale
+    return (f"the lens' diffraction at f/{settings.f_number:g}, 550 nm, {1e3 * pitch:.2f} µm pixels: Airy radius "
+            f"{airy_radius_px(settings.f_number, 550.0, pitch):.2f} px (scenes.optics)")
 
 
 def _speckle_render_text(out_dir: Path, settings: PaperSettings) -> str:
@@ -379,6 +395,7 @@ def write_paper_report(out_dir: Path, settings: PaperSettings, timings: dict, to
               f"| seed | {settings.seed} |",
               f"| rendering | speckled specimens: {_speckle_render_text(out_dir, settings)}; calibration boards: "
               f"{_board_render_text(out_dir)} |",
+              f"| optics of the rigid-motion and bending states | {_optics_text(settings)} |",
               f"| calibration views | {settings.calibration_views} + {settings.validation_views} validation |",
               f"| machine | {idics.machine_text()} |",
               f"| finished | {datetime.now(timezone.utc).isoformat(timespec='seconds')} |",

@@ -209,7 +209,7 @@ def measure_rigid_motion(truth, images: Path, rig: CalibratedRig, *, subset_size
 def reproduce_rigid_motion(out_dir: str | Path, *, scale: float = 1.0, calib: str = "rendered", lens: str = "pinhole",
                            seed: int = 0, spp: int = 64, subset_size: int = 65, step: int = 5, states=None,
                            progress: bool = True, store=None, mc_target_grey: float | None = None,
-                           renderer: str = "auto") -> dict:
+                           renderer: str = "auto", f_number: float | None = 8.0) -> dict:
     """Render (or reuse) the states, measure them, score against truth, write the report. Returns the metrics.
 
     ``mc_target_grey``: adaptive renders (:mod:`scenes.adaptive`) at that Monte-Carlo noise instead of ``spp``
@@ -218,7 +218,8 @@ def reproduce_rigid_motion(out_dir: str | Path, *, scale: float = 1.0, calib: st
     ``"mitsuba"`` always with Mitsuba; ``metrics["speckle_renderers"]`` counts the images each made.
 
     The states are rendered into the dataset store (``store``, default :func:`workbench.store.default_store_dir`)
-    under the hash of everything that makes them: an identical run reuses them (``metrics["images"]``).
+    under the hash of everything that makes them: an identical run reuses them (``metrics["images"]``). They are
+    recorded through the diffraction of a lens at ``f_number`` (550 nm, the rig's pixels; None: ideal optics).
     """
     out_dir = Path(out_dir)
     rig, rig_text = _rig_for(calib, scale, out_dir, seed, store, mc_target_grey)  # a bad file: refused first
@@ -226,8 +227,9 @@ def reproduce_rigid_motion(out_dir: str | Path, *, scale: float = 1.0, calib: st
     content = {"experiment": "rigid-motion", "rig": "paper", "scale": float(scale), "lens": lens, "seed": seed,
                **render_content(spp, mc_target_grey), **speckle_render_content(renderer, lens, mc_target_grey),
                "read_noise_grey": 1.0, "states_mm": [float(v) for v in wanted]}
-    optics = paper_optics(get_rig("paper", scale))
-    content["optics"] = optics.to_dict()
+    optics = None if f_number is None else paper_optics(get_rig("paper", scale), f_number)
+    if optics is not None:                      # ideal-optics datasets keep the hashes they had
+        content["optics"] = optics.to_dict()
     images, _ = stored_render("rigid-motion", content, lambda folder: render_rigid_motion(
         "paper", folder, scale=scale, lens=lens, spp=spp, seed=seed, states=wanted, progress=progress,
         overwrite=True, mc_target_grey=mc_target_grey, renderer=renderer, optics=optics), store)

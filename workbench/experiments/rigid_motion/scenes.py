@@ -459,7 +459,7 @@ def render_info(rig: StereoRig, rig_scale, spp: int, seed: int, noise_grey: floa
     ``images``: which renderer made each image and why Mitsuba did where the deterministic one could not;
     ``optics``: the lens' diffraction, when there is one)."""
     adaptive = {} if mc_target_grey is None else {"mc_target_grey": float(mc_target_grey), "mc": mc_log or []}
-    if optics is not None and optics.f_number is not None:
+    if optics is not None and not optics.ideal:
         adaptive["optics"] = optics.to_dict()
     if render_log:
         names = [r["renderer"] for r in render_log]

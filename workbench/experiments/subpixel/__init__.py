@@ -3,8 +3,8 @@
 A speckled plate faces a camera square on and moves rigidly in its plane by a fraction of a pixel. Every render
 path draws it (:data:`PATHS`), and a *converged reference* of the same optical model draws it too: ``16 x 16``
 sub-pixel rays per pixel, each meeting the plate, the paint evaluated at that point as what it is defined to be,
-the band-limited interpolant of its texture (:func:`scenes.speckle.fourier_upsample` to at least 16 texels per
-pixel, then looked up linearly, an error below 1e-5 px) -- not through the texture the renderers look up.
+the band-limited interpolant of its pattern samples (:func:`scenes.speckle.fourier_upsample` to at least 16 texels
+per pixel, then looked up linearly, an error below 1e-5 px) -- not through the texture the renderers look up.
 
 Two figures per path and phase, both by the instrument (2-D subset DIC, second order, biquintic):
 
@@ -13,7 +13,9 @@ Two figures per path and phase, both by the instrument (2-D subset DIC, second o
 * **motion error** -- DIC between the render at rest and the render moved, minus the true motion, beside the
   instrument alone on the references (the exact images) at rest and moved.
 
-Without sensor noise both are systematic: what the DIC finds is what the images carry.
+Without sensor noise both are systematic: what the DIC finds is what the images carry. Also here: the twin's
+photographed texture against the exact (Fourier) shift of a periodic photograph (:func:`photo_phase_errors`), and
+speckle aliasing as an error source, through the lens' diffraction (:func:`aliasing_study`).
 """
 from __future__ import annotations
 
@@ -49,12 +51,6 @@ class PlateScene:
     ``f_number``: the lens' diffraction on pixels of ``pixel_pitch_mm`` (None: ideal optics), the view rendered
     ``supersample`` times finer first (:func:`render`)."""
 
-    @property
-    def optics(self):
-        from scenes.optics import Optics
-
-        return Optics(f_number=self.f_number, pixel_pitch_mm=self.pixel_pitch_mm)
-
     size_px: int = 96
     fx_px: float = 8000.0
     distance_mm: float = 300.0
@@ -68,6 +64,12 @@ class PlateScene:
     f_number: float | None = None
     supersample: int = 1
     pixel_pitch_mm: float = 0.00345
+
+    @property
+    def optics(self):
+        from scenes.optics import Optics
+
+        return Optics(f_number=self.f_number, pixel_pitch_mm=self.pixel_pitch_mm)
 
     @property
     def footprint_mm(self) -> float:
