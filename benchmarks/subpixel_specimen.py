@@ -2,7 +2,7 @@
 fraction of the true motion.
 
 The catalog's plate with a hole (``workbench reproduce catalog``'s scenario, rendered through the store: its
-load steps, then the rigid tour of 4 moves through 0-7.6 px, then the static state moved by (0.5, 0.5) px), the
+load steps, then the rigid tour of 4 moves through up to 10 px, then the static state moved by (0.5, 0.5) px), the
 instrument's 2-D DIC (subset 33, step 8, second order, biquintic) on the left images, state 0 -> k, on the
 measurable part of the reference. Each point's error (measured minus true ``uv_left_px``) is binned by the distance
 of its true motion from the nearest whole pixel, per component; the static state's error is the floor.

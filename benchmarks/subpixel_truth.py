@@ -47,6 +47,18 @@ def _variants(paths):
     return out
 
 
+def _summary_line(label: str, rows: list[dict]) -> str:
+    """One table row: the worst render error (and its phase), the largest |mean|, the worst motion error, the
+    instrument alone."""
+    worst = max(rows, key=lambda r: r["render_rms_px"])
+    worst_motion = max(rows, key=lambda r: r["motion_rms_px"])
+    mean = max(max(abs(v) for v in r["render_mean_px"]) for r in rows)
+    alone = max(r["instrument_alone_rms_px"] for r in rows)
+    return (f"{label:58s} | {worst['render_rms_px']:.5f} ({worst['phase_px'][0]:g}, {worst['phase_px'][1]:g}) / "
+            f"{mean:.5f} | {worst_motion['motion_rms_px']:.5f} at ({worst_motion['phase_px'][0]:g}, "
+            f"{worst_motion['phase_px'][1]:g}) | {alone:.5f}")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--random", type=int, default=6, help="random (x, y) fractions besides k/8 along x")
@@ -61,13 +73,7 @@ def main() -> None:
     table = []
     for label, scene, path in _variants([p.strip() for p in args.paths.split(",") if p.strip()]):
         rows = phase_errors(scene, path, phases)
-        worst = max(rows, key=lambda r: r["render_rms_px"])
-        worst_motion = max(rows, key=lambda r: r["motion_rms_px"])
-        mean = max(max(abs(v) for v in r["render_mean_px"]) for r in rows)
-        alone = max(r["instrument_alone_rms_px"] for r in rows)
-        print(f"{label:58s} | {worst['render_rms_px']:.5f} ({worst['phase_px'][0]:g}, {worst['phase_px'][1]:g}) / "
-              f"{mean:.5f} | {worst_motion['motion_rms_px']:.5f} at ({worst_motion['phase_px'][0]:g}, "
-              f"{worst_motion['phase_px'][1]:g}) | {alone:.5f}")
+        print(_summary_line(label, rows))
         table.append({"label": label, "path": path, "rows": rows})
     from scenes.speckle import speckle_pattern
     from workbench.experiments.subpixel import photo_phase_errors
@@ -82,13 +88,7 @@ def main() -> None:
             rows = photo_phase_errors(photo, phases)
         finally:
             image_texture.UPSAMPLE = kept
-        worst = max(rows, key=lambda r: r["render_rms_px"])
-        worst_motion = max(rows, key=lambda r: r["motion_rms_px"])
-        mean = max(max(abs(v) for v in r["render_mean_px"]) for r in rows)
-        alone = max(r["instrument_alone_rms_px"] for r in rows)
-        print(f"{label:58s} | {worst['render_rms_px']:.5f} ({worst['phase_px'][0]:g}, {worst['phase_px'][1]:g}) / "
-              f"{mean:.5f} | {worst_motion['motion_rms_px']:.5f} at ({worst_motion['phase_px'][0]:g}, "
-              f"{worst_motion['phase_px'][1]:g}) | {alone:.5f}")
+        print(_summary_line(label, rows))
         table.append({"label": label, "path": "photo", "rows": rows})
     print("\nper phase (render error RMS px), k/8 along x:")
     for t in table:

@@ -175,8 +175,8 @@ GOALS = {"U_rmse_over_noise_floor": 2.0, "strain_rmse_percent_of_peak": 10.0, "r
          "rigid_component_rmse_over_floor": 1.2}
 #: The catalog scenarios' extra states for reproduce (beyond `workbench catalog`'s): after its last load step every
 #: specimen moves rigidly 4 times by this step, in pixel footprints at the working distance along the specimen's x,
-#: y (in its plane) and z (out of it): 0-7.6 px across the image, through every sub-pixel fraction, and 8 footprints
-#: towards the cameras.
+#: y (in its plane) and z (out of it): 7.6 footprints along x and 5.4 along y, and 8 towards the cameras (up to 10 px
+#: in the left image with the parallax), through every sub-pixel fraction.
 RIGID_TOUR = {"rigid_states": 4, "step_px": (1.9, 1.35, -2.0)}
 
 
