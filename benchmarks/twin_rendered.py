@@ -41,7 +41,7 @@ def render_case(folder: Path, rig: str, scale: float, read: float, gain: float) 
     write_exodus(folder / "plate.e", m.points, {"tetra": m.cells[0].data}, np.zeros((1, *m.points.shape)), times=[0.0])
     (folder / "plate.toml").write_text(f'experiment = "specimen"\nseed = 7\n[rig]\nname = "{rig}"\nscale = {scale}\n'
                                        f'[render]\nread_noise_grey = {read}\nelectrons_per_grey = {gain}\n'
-                                       '[specimen]\nmesh = "plate.e"\n')
+                                       '[specimen]\nmesh = "plate.e"\nstatic_offset_px = [0.0, 0.0]\n')
     assert main(["render", "specimen", str(folder / "plate.toml"), "--out", str(folder / "data")]) == 0
     assert main(["export", str(folder / "data"), "--format", "native", "--out", str(folder / "ex")]) == 0
     return folder / "ex"

@@ -24,7 +24,8 @@ def _write(path, image, dtype=np.uint8):
 @pytest.fixture(scope="module")
 def rendered_rig(tmp_path_factory):
     """A flat speckled plate rendered in stereo through the paper rig at quarter scale, state 0 and its static
-    repeat, with read noise 2 grey and shot noise 20 e-/grey; exported with the rig's calibration."""
+    repeat at the same position (a real static pair: ``static_offset_px = [0, 0]``), with read noise 2 grey and shot
+    noise 20 e-/grey; exported with the rig's calibration."""
     import skfem
     from skfem.io.meshio import to_meshio
 
@@ -36,7 +37,7 @@ def rendered_rig(tmp_path_factory):
     write_exodus(tmp / "plate.e", m.points, {"tetra": m.cells[0].data}, np.zeros((1, *m.points.shape)), times=[0.0])
     (tmp / "plate.toml").write_text('experiment = "specimen"\nseed = 3\n[rig]\nname = "paper"\nscale = 0.25\n'
                                     '[render]\nread_noise_grey = 2.0\nelectrons_per_grey = 20.0\n'
-                                    '[specimen]\nmesh = "plate.e"\n')
+                                    '[specimen]\nmesh = "plate.e"\nstatic_offset_px = [0.0, 0.0]\n')
     assert main(["render", "specimen", str(tmp / "plate.toml"), "--out", str(tmp / "data")]) == 0
     assert main(["export", str(tmp / "data"), "--format", "native", "--out", str(tmp / "ex")]) == 0
     return tmp / "ex"
