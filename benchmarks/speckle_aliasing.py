@@ -44,6 +44,7 @@ def main() -> None:
         import matplotlib.pyplot as plt
 
         from labio.atomic import atomic_write_text
+        from workbench.manifest import save_figure
 
         args.out.mkdir(parents=True, exist_ok=True)
         atomic_write_text(args.out / "aliasing.json", json.dumps(rows, indent=1))
@@ -60,9 +61,8 @@ def main() -> None:
         ax.grid(True, which="both", alpha=0.3)
         ax.legend(fontsize=8)
         fig.tight_layout()
-        fig.savefig(args.out / "aliasing.png.part.png", dpi=120)
+        save_figure(fig, args.out / "aliasing.png", dpi=120)
         plt.close(fig)
-        (args.out / "aliasing.png.part.png").replace(args.out / "aliasing.png")
 
 
 if __name__ == "__main__":

@@ -111,7 +111,6 @@ def strain_goal_scale_law(rig_name: str, lens: str, scale: float, loads, subset_
     (no rendering)."""
     from workbench.experiments.bending.report import GOALS
     from workbench.experiments.bending.scenes import bending_truth
-    from workbench.rigs import get_rig
 
     full = bending_truth(get_rig(rig_name, 1.0), lens=lens, loads_N=loads, seed=seed)
     peak_full = sampled_peak_strain_ue(full, subset_size, step, state)
