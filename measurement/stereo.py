@@ -88,7 +88,7 @@ def _check_points(name: str, points, n_cols: int) -> np.ndarray:
     return points
 
 
-def _check_stereo_pose(R_right_from_left, T_right_from_left_mm) -> tuple[np.ndarray, np.ndarray]:
+def check_stereo_pose(R_right_from_left, T_right_from_left_mm) -> tuple[np.ndarray, np.ndarray]:
     """Validated ``(R (3, 3), T_mm (3,))``: R a proper rotation, both finite."""
     R = np.asarray(R_right_from_left, dtype=float)
     T = np.asarray(T_right_from_left_mm, dtype=float)
@@ -236,7 +236,7 @@ def _reprojection_residuals_px(left, right, R, T, X_left_mm, pixels_left, pixels
     return np.concatenate([predicted_left - pixels_left, predicted_right - pixels_right], axis=1)
 
 
-def _stacked_jacobian(left, right, R, T, X_left_mm) -> np.ndarray:
+def stacked_jacobian(left, right, R, T, X_left_mm) -> np.ndarray:
     """Jacobian of the stacked residuals with respect to ``X_left_mm``, shape (N, 4, 3), px / mm."""
     J_left = projection_jacobian(left, X_left_mm)
     J_right = projection_jacobian(right, X_left_mm @ R.T + T) @ R  # (N, 2, 3) @ (3, 3)
@@ -279,7 +279,7 @@ def _refine_gauss_newton(left, right, R, T, X_left_mm, pixels_left, pixels_right
             break
         Xa, pl, pr = X[active], pixels_left[active], pixels_right[active]
         r = _reprojection_residuals_px(left, right, R, T, Xa, pl, pr)
-        J = _stacked_jacobian(left, right, R, T, Xa)
+        J = stacked_jacobian(left, right, R, T, Xa)
         H = np.einsum("nki,nkj->nij", J, J)
         step = -_solve_3x3(H, np.einsum("nki,nk->ni", J, r))
         gn_step_mm = np.linalg.norm(step, axis=1)
@@ -352,7 +352,7 @@ def triangulate(left: ScheimpflugCamera, right: ScheimpflugCamera, R_right_from_
         If the pixel arrays are not (N, 2) or differ in length, or the pose is not a proper rotation and a
         non-zero finite translation.
     """
-    R, T = _check_stereo_pose(R_right_from_left, T_right_from_left_mm)
+    R, T = check_stereo_pose(R_right_from_left, T_right_from_left_mm)
     pixels_left, pixels_right = _check_pixel_pair(pixels_left, pixels_right)
     if not 0 < min_ray_angle_deg < 90:
         raise ValueError(f"min_ray_angle_deg must be in (0, 90) degrees, got {min_ray_angle_deg}")
@@ -412,11 +412,11 @@ def triangulation_covariance_mm2(left: ScheimpflugCamera, right: ScheimpflugCame
     ndarray, shape (N, 3, 3), mm^2
         Covariance of each triangulated point in the left frame; NaN for points behind a camera.
     """
-    R, T = _check_stereo_pose(R_right_from_left, T_right_from_left_mm)
+    R, T = check_stereo_pose(R_right_from_left, T_right_from_left_mm)
     X_left_mm = _check_points("X_left_mm", X_left_mm, 3)
     if not (np.isfinite(pixel_sigma_px) and pixel_sigma_px >= 0):
         raise ValueError(f"pixel_sigma_px must be finite and non-negative, got {pixel_sigma_px}")
-    J = _stacked_jacobian(left, right, R, T, X_left_mm)
+    J = stacked_jacobian(left, right, R, T, X_left_mm)
     normal = np.swapaxes(J, 1, 2) @ J
     cov = np.full(normal.shape, np.nan)
     ok = np.all(np.isfinite(normal), axis=(1, 2))

@@ -31,7 +31,12 @@ from measurement.dic.correlate import PreparedImage, prepare_image
 from measurement.dic.guide import band_regions
 from measurement.dic.initial import translation_parameters
 from measurement.dic.roi import AutoRoi, AutoRoiReport, expand_result, flag_inconsistent, texture_grid
+from measurement.speckle_quality import NoiseModel
 from measurement.stereo import triangulate
+from measurement.uncertainty.match import (FLAG_NONE, FLAG_RESIDUAL, MatchUncertainty, ReferenceSubsets,
+                                           interpolation_noise_gain, match_uncertainty, noise_from_residuals,
+                                           reference_subsets)
+from measurement.uncertainty.stereo import shape_covariance_mm2, state_covariances_mm2, triangulation_sensitivity
 
 #: Default matching settings for stereo: the paper's 65 px subset (it quotes 64) and step 5, second order.
 STEREO_DIC_SETTINGS = DICSettings(subset_size=65, step=5, order=2, min_zncc=0.8)
@@ -316,6 +321,13 @@ class StereoShape:
     measure_grid: PoiGrid | None = field(default=None, repr=False)
     noise_sigma_grey: float | None = None
     auto_roi_report: AutoRoiReport | None = None
+    #: Random uncertainty (:mod:`measurement.uncertainty`): the left reference subsets' Hessians, the stereo
+    #: match's uncertainty, the covariance of X_mm (N, 3, 3) mm^2, and the noise models used ("left", "right");
+    #: None when the shape was measured with ``uncertainty=False``.
+    subsets: ReferenceSubsets | None = field(default=None, repr=False)
+    match_uncertainty: MatchUncertainty | None = field(default=None, repr=False)
+    cov_X_mm2: np.ndarray | None = field(default=None, repr=False)
+    noise: dict | None = None
 
 
 @dataclass
@@ -349,6 +361,14 @@ class StereoState:
     right_match: DICResult
     quality: StereoQuality | None = None      # residual statistics, measured fraction of the reference's points
     auto_roi_report: AutoRoiReport | None = None    # what the automatic ROI flagged, if the shape has one
+    #: Random uncertainty (None when the shape has none): covariance of X_mm and of U_mm (N, 3, 3) mm^2, the two
+    #: temporal matches' uncertainties, and ``flag`` (N,) int8: 0 trusted, else the first flag of the three
+    #: matches (:data:`measurement.uncertainty.match.FLAG_NAMES`).
+    cov_X_mm2: np.ndarray | None = field(default=None, repr=False)
+    cov_U_mm2: np.ndarray | None = field(default=None, repr=False)
+    left_uncertainty: MatchUncertainty | None = field(default=None, repr=False)
+    right_uncertainty: MatchUncertainty | None = field(default=None, repr=False)
+    flag: np.ndarray | None = field(default=None, repr=False)
 
     @property
     def valid(self) -> np.ndarray:
@@ -370,13 +390,20 @@ def reference_shape(left: ScheimpflugCamera, right: ScheimpflugCamera, R_right_f
                     left_ref: np.ndarray, right_ref: np.ndarray, settings: DICSettings = STEREO_DIC_SETTINGS, *,
                     roi=None, mask=None, max_median_residual_px: float | None = MAX_MEDIAN_RESIDUAL_PX,
                     min_measured_fraction: float | None = MIN_MEASURED_FRACTION,
-                    auto_roi: AutoRoi | None = None) -> StereoShape:
+                    auto_roi: AutoRoi | None = None, noise: dict | None = None,
+                    uncertainty: bool = True) -> StereoShape:
     """Match left-ref -> right-ref (feature seeds) and triangulate the reference shape.
 
     ``auto_roi`` (default None: off) correlates only the grid nodes whose left-reference subset passes
     :func:`measurement.dic.roi.texture_mask` (the others are LOW_TEXTURE) and flags the matches that fail
     :func:`measurement.dic.roi.consistency_flags` INCONSISTENT; the measured fraction is then of the textured
     nodes. :func:`measure_state` does the same for every state of this shape.
+
+    ``uncertainty`` (default True) also computes every point's random uncertainty
+    (:mod:`measurement.uncertainty.match`, :mod:`measurement.uncertainty.stereo`) with the cameras' noise models
+    ``noise = {"left": NoiseModel, "right": NoiseModel}`` (from static pairs:
+    :func:`measurement.speckle_quality.noise_from_static_pair`); without them the noise is fitted to the stereo
+    match's own residuals (both cameras alike; it errs high where the shape function misfits).
 
     Raises
     ------
@@ -410,8 +437,42 @@ def reference_shape(left: ScheimpflugCamera, right: ScheimpflugCamera, R_right_f
     quality = stereo_quality(tri.reprojection_error_px, valid, None if auto_roi is None else measure_grid.count)
     check_stereo_quality(quality, "reference shape (left reference -> right reference)",
                          max_median_residual_px=max_median_residual_px, min_measured_fraction=min_measured_fraction)
-    return StereoShape(match.x, match.y, match, tri.X_left_mm, tri.reprojection_error_px, valid, grid, prepared,
-                       features, quality, auto_roi, None if auto_roi is None else measure_grid, sigma, report)
+    shape = StereoShape(match.x, match.y, match, tri.X_left_mm, tri.reprojection_error_px, valid, grid, prepared,
+                        features, quality, auto_roi, None if auto_roi is None else measure_grid, sigma, report)
+    if uncertainty:
+        _shape_uncertainty(shape, left, right, R_right_from_left, T_right_from_left_mm, settings, noise)
+    return shape
+
+
+def _check_noise(noise) -> dict | None:
+    if noise is None:
+        return None
+    if not isinstance(noise, dict) or set(noise) != {"left", "right"} or \
+            not all(isinstance(v, NoiseModel) for v in noise.values()):
+        raise ValueError("noise must be {'left': NoiseModel, 'right': NoiseModel} (or None: estimated from the "
+                         f"matches), got {noise!r}")
+    return noise
+
+
+def _shape_uncertainty(shape: StereoShape, left, right, R, T, settings: DICSettings, noise) -> None:
+    """Fill the shape's uncertainty fields (see :class:`StereoShape`)."""
+    noise = _check_noise(noise)
+    values = shape.reference.values
+    half = settings.subset_size // 2
+    box = (int(shape.x.min()) - half, int(shape.y.min()) - half, int(shape.x.max()) + half + 1,
+           int(shape.y.max()) + half + 1)
+    gains = interpolation_noise_gain(values, shape.reference.spline.degree, box=box)
+    if noise is None:
+        # both cameras alike: the stereo match's residuals hold the noise of both images
+        model = noise_from_residuals(values, shape.x, shape.y, shape.right_match,
+                                     interpolation=settings.interpolation, gains=gains)
+        noise = {"left": model, "right": model}
+    subsets = reference_subsets(shape.reference, shape.x, shape.y, settings.subset_size, settings.order,
+                                noise["left"], settings.interpolation, gains=gains)
+    unc = match_uncertainty(subsets, shape.right_match, noise["right"])
+    G = triangulation_sensitivity(left, right, R, T, shape.X_mm)
+    shape.subsets, shape.match_uncertainty, shape.noise = subsets, unc, noise
+    shape.cov_X_mm2 = shape_covariance_mm2(G, unc.cov_reference_px2, unc.cov_target_px2)
 
 
 def measure_state(left: ScheimpflugCamera, right: ScheimpflugCamera, R_right_from_left, T_right_from_left_mm,
@@ -472,5 +533,25 @@ def measure_state(left: ScheimpflugCamera, right: ScheimpflugCamera, R_right_fro
         low = shape.auto_roi_report.low_texture if shape.auto_roi_report is not None else 0
         report = AutoRoiReport(shape.x.size, low, int(np.count_nonzero(status == Status.INCONSISTENT)),
                                shape.noise_sigma_grey, reasons)
-    return StereoState(X, U, np.linalg.norm(U, axis=1), residual, np.where(ok, zncc, np.nan), status, left_match,
-                       right_match, quality, report)
+    state = StereoState(X, U, np.linalg.norm(U, axis=1), residual, np.where(ok, zncc, np.nan), status, left_match,
+                        right_match, quality, report)
+    if shape.subsets is not None:
+        _state_uncertainty(state, shape, left, right, R_right_from_left, T_right_from_left_mm)
+    return state
+
+
+def _state_uncertainty(state: StereoState, shape: StereoShape, left, right, R, T) -> None:
+    """Fill the state's uncertainty fields (see :class:`StereoState`)."""
+    lu = match_uncertainty(shape.subsets, state.left_match, shape.noise["left"])
+    ru = match_uncertainty(shape.subsets, state.right_match, shape.noise["right"])
+    G_ref = triangulation_sensitivity(left, right, R, T, shape.X_mm)
+    G_def = triangulation_sensitivity(left, right, R, T, state.X_mm)
+    su = shape.match_uncertainty
+    cov_X, cov_U = state_covariances_mm2(G_ref, G_def, su.cov_reference_px2, su.cov_target_px2,
+                                         lu.cov_target_px2, ru.cov_target_px2)
+    flag = np.full(state.X_mm.shape[0], FLAG_NONE, dtype=np.int8)
+    for unc in (ru, lu, su):
+        hit = (flag == FLAG_NONE) & (unc.flag == FLAG_RESIDUAL)
+        flag[hit] = FLAG_RESIDUAL
+    state.cov_X_mm2, state.cov_U_mm2 = cov_X, cov_U
+    state.left_uncertainty, state.right_uncertainty, state.flag = lu, ru, flag

@@ -109,7 +109,7 @@ def prefilter(image: np.ndarray, interpolation: str | int = "biquintic", gradien
     return BSplineImage(coefficients.astype(coefficient_dtype, copy=False), degree, grad_x, grad_y)
 
 
-def _integer_kernels(degree: int) -> tuple[np.ndarray, np.ndarray]:
+def integer_kernels(degree: int) -> tuple[np.ndarray, np.ndarray]:
     """beta_n(k) and beta_n'(k) at k = -h..h, as correlation kernels over the coefficients."""
     if degree == 3:
         value = np.array([1.0, 4.0, 1.0]) / 6.0
@@ -130,7 +130,7 @@ def pixel_gradients(coefficients: np.ndarray, degree: int) -> tuple[np.ndarray, 
     grad_x, grad_y : ndarray of float64, shape (rows, cols)
         Grey levels per pixel along x (columns) and y (rows).
     """
-    value, derivative = _integer_kernels(degree)
+    value, derivative = integer_kernels(degree)
     c = np.ascontiguousarray(coefficients, dtype=np.float64)
     smooth = np.empty_like(c)
     grad_x = np.empty_like(c)

@@ -1,0 +1,1 @@
+"""Uncertainty of stereo-DIC results: the parts each error source contributes to a measured point."""

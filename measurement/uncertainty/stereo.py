@@ -1,0 +1,99 @@
+"""Random uncertainty of triangulated positions and displacements: the matches carried through both cameras.
+
+Every image is matched from the LEFT REFERENCE subset (:mod:`measurement.stereo_dic`): the stereo match
+(left-ref -> right-ref) and, per state, left-ref -> left-def and left-ref -> right-def. To first order each match
+error is a sum of independent parts (:mod:`measurement.uncertainty.match`):
+
+    e_s = d_L + n_R,   e_l = d_L + n_Ld,   e_r = d_L + n_Rd,
+
+with ``d_L`` the left reference's noise -- *the same* in all three matches, since they correlate the same reference
+subset -- and ``n_*`` the noise of the right reference, left deformed and right deformed images. Optimal
+triangulation moves a point by ``G = (J^T J)^-1 J^T`` per pixel error (J: the (4, 3) stacked projection Jacobian
+of both cameras, tilt and distortion included; G's columns 0-1 for the left pixel, 2-3 for the right one). So
+
+    X_ref error = G_R^ref e_s                                   (the left reference pixel is the point itself)
+    X_def error = G_L e_l + G_R e_r
+    U error     = (G_L + G_R - G_R^ref) d_L + G_L n_Ld + G_R n_Rd - G_R^ref n_R,
+
+and the covariances follow with the 2 x 2 covariances of the parts. The reference state's noise is thus counted in
+every displacement, and the shared left-reference part is neither dropped nor double counted.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from measurement.stereo import check_stereo_pose, stacked_jacobian
+
+
+def triangulation_sensitivity(left, right, R_right_from_left, T_right_from_left_mm, X_left_mm) -> np.ndarray:
+    """``dX / d(pixels)`` of optimal triangulation at each point, shape (N, 3, 4), mm/px.
+
+    Columns: left u, left v, right u, right v. NaN rows for non-finite points.
+    """
+    R, T = check_stereo_pose(R_right_from_left, T_right_from_left_mm)
+    X = np.asarray(X_left_mm, dtype=np.float64).reshape(-1, 3)
+    out = np.full((X.shape[0], 3, 4), np.nan)
+    ok = np.all(np.isfinite(X), axis=1)
+    if not ok.any():
+        return out
+    J = stacked_jacobian(left, right, R, T, X[ok])
+    normal = np.swapaxes(J, 1, 2) @ J
+    good = np.all(np.isfinite(normal), axis=(1, 2)) & (np.abs(np.linalg.det(normal)) > 0)
+    G = np.full((J.shape[0], 3, 4), np.nan)
+    G[good] = np.linalg.solve(normal[good], np.swapaxes(J[good], 1, 2))
+    out[ok] = G
+    return out
+
+
+def _sandwich(A: np.ndarray, C: np.ndarray) -> np.ndarray:
+    """A C A^T for stacks (N, 3, 2) and (N, 2, 2)."""
+    return A @ C @ np.swapaxes(A, 1, 2)
+
+
+def shape_covariance_mm2(G_ref: np.ndarray, cov_left_reference_px2: np.ndarray,
+                         cov_right_reference_px2: np.ndarray) -> np.ndarray:
+    """Covariance of the reference shape's points, (N, 3, 3) mm^2.
+
+    Parameters
+    ----------
+    G_ref : (N, 3, 4) triangulation sensitivity at the reference points
+    cov_left_reference_px2 : (N, 2, 2)
+        The stereo match's part from the left reference image's noise.
+    cov_right_reference_px2 : (N, 2, 2)
+        Its part from the right reference image's noise.
+    """
+    Gr = G_ref[:, :, 2:]
+    return _sandwich(Gr, cov_left_reference_px2 + cov_right_reference_px2)
+
+
+def state_covariances_mm2(G_ref: np.ndarray, G_def: np.ndarray, cov_left_reference_px2: np.ndarray,
+                          cov_right_reference_px2: np.ndarray, cov_left_deformed_px2: np.ndarray,
+                          cov_right_deformed_px2: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Covariance of the deformed positions and of the displacements (module notes), each (N, 3, 3) mm^2.
+
+    Parameters
+    ----------
+    G_ref, G_def : (N, 3, 4)
+        Triangulation sensitivity at the reference and at the deformed points.
+    cov_left_reference_px2 : (N, 2, 2)
+        The left reference image's part of every match (shared).
+    cov_right_reference_px2, cov_left_deformed_px2, cov_right_deformed_px2 : (N, 2, 2)
+        The target parts of the stereo match, the left temporal match and the right temporal match.
+
+    Returns
+    -------
+    cov_X_def, cov_U : ndarray (N, 3, 3)
+    """
+    GL, GR, GRref = G_def[:, :, :2], G_def[:, :, 2:], G_ref[:, :, 2:]
+    shared = GL + GR - GRref
+    cov_U = (_sandwich(shared, cov_left_reference_px2) + _sandwich(GL, cov_left_deformed_px2)
+             + _sandwich(GR, cov_right_deformed_px2) + _sandwich(GRref, cov_right_reference_px2))
+    cov_X = (_sandwich(GL + GR, cov_left_reference_px2) + _sandwich(GL, cov_left_deformed_px2)
+             + _sandwich(GR, cov_right_deformed_px2))
+    return cov_X, cov_U
+
+
+def sigmas(cov: np.ndarray) -> np.ndarray:
+    """Square roots of the diagonals of a stack of covariances, (N, k, k) -> (N, k)."""
+    return np.sqrt(np.clip(np.einsum("kii->ki", cov), 0.0, None)) * np.where(
+        np.all(np.isfinite(np.einsum("kii->ki", cov)), axis=1), 1.0, np.nan)[:, None]
