@@ -13,11 +13,53 @@ from measurement.dic import Status
 from labio.atomic import atomic_write_text, atomic_writer
 from measurement.stereo_dic import StereoShape, StereoState
 
-CSV_COLUMNS = ("x", "y", "X", "Y", "Z", "U", "V", "W", "D", "zncc", "residual", "status", "status_name")
+#: Random uncertainty (standard, 1 sigma) of X, Y, Z and U, V, W, µm; the calibration's (systematic, correlated over
+#: all points) part of the same; ``sigma_flag``: 0 trusted, 1 the match residual exceeds what the noise explains,
+#: 2 no match, 3 no sigma (singular subset) -- :mod:`measurement.uncertainty`.
+SIGMA_COLUMNS = ("sigma_X_um", "sigma_Y_um", "sigma_Z_um", "sigma_U_um", "sigma_V_um", "sigma_W_um",
+                 "sigma_X_calib_um", "sigma_Y_calib_um", "sigma_Z_calib_um",
+                 "sigma_U_calib_um", "sigma_V_calib_um", "sigma_W_calib_um", "sigma_flag")
+CSV_COLUMNS = ("x", "y", "X", "Y", "Z", "U", "V", "W", "D", "zncc", "residual", "status", "status_name",
+               *SIGMA_COLUMNS)
 
 
 def _fmt(value: float) -> str:
     return "nan" if not np.isfinite(value) else f"{value:.9g}"
+
+
+def state_sigmas(shape: StereoShape, state: StereoState | None = None) -> dict[str, np.ndarray]:
+    """The :data:`SIGMA_COLUMNS` of a state (or of the reference shape), (N,) each; NaN where unknown.
+
+    The reference shape's displacement is zero by definition: its sigma_U is 0 (random and calibration).
+    """
+    n = shape.x.size
+    valid = shape.valid if state is None else state.valid
+    if state is None:
+        sx = _sigmas_um(shape.cov_X_mm2, n)
+        su = np.where(valid[:, None], 0.0, np.nan) * np.ones((n, 3))
+        cx = _sigmas_um(getattr(shape, "calibration_cov_X_mm2", None), n)
+        cu = np.where(valid[:, None] & np.isfinite(cx), 0.0, np.nan) * np.ones((n, 3))
+        unc = shape.match_uncertainty
+        flag = unc.flag.astype(np.int64) if unc is not None else np.full(n, -1)
+    else:
+        sx, su = _sigmas_um(state.cov_X_mm2, n), _sigmas_um(state.cov_U_mm2, n)
+        cx = _sigmas_um(getattr(state, "calibration_cov_X_mm2", None), n)
+        cu = _sigmas_um(getattr(state, "calibration_cov_U_mm2", None), n)
+        flag = state.flag.astype(np.int64) if state.flag is not None else np.full(n, -1)
+    if flag.min(initial=0) >= 0:
+        flag = np.where(valid & ~np.isfinite(sx[:, 0]) & (flag == 0), 3, flag)
+        flag = np.where(~valid & (flag == 0), 2, flag)
+    sx, su = np.where(valid[:, None], sx, np.nan), np.where(valid[:, None], su, np.nan)
+    cx, cu = np.where(valid[:, None], cx, np.nan), np.where(valid[:, None], cu, np.nan)
+    values = [*sx.T, *su.T, *cx.T, *cu.T, flag]
+    return dict(zip(SIGMA_COLUMNS, values))
+
+
+def _sigmas_um(cov_mm2, n: int) -> np.ndarray:
+    if cov_mm2 is None:
+        return np.full((n, 3), np.nan)
+    diag = np.einsum("kii->ki", np.asarray(cov_mm2, dtype=np.float64))
+    return 1e3 * np.sqrt(np.where(diag >= 0, diag, np.nan))
 
 
 def state_rows(shape: StereoShape, state: StereoState | None = None) -> list[list[str]]:
@@ -33,14 +75,19 @@ def state_rows(shape: StereoShape, state: StereoState | None = None) -> list[lis
     else:
         X, U, zncc, residual, status = state.X_mm, state.U_mm, state.zncc, state.residual_px, state.status
     D = np.linalg.norm(U, axis=1)
+    sig = state_sigmas(shape, state)
+    flag = sig.pop("sigma_flag")
+    table = np.column_stack(list(sig.values()))
     return [[str(int(shape.x[k])), str(int(shape.y[k])), *(_fmt(v) for v in X[k]), *(_fmt(v) for v in U[k]),
-             _fmt(D[k]), _fmt(zncc[k]), _fmt(residual[k]), str(int(status[k])), Status(int(status[k])).name.lower()]
+             _fmt(D[k]), _fmt(zncc[k]), _fmt(residual[k]), str(int(status[k])), Status(int(status[k])).name.lower(),
+             *(_fmt(v) for v in table[k]), "" if flag[k] < 0 else str(int(flag[k]))]
             for k in range(shape.x.size)]
 
 
 def write_state_csv(path: str | Path, shape: StereoShape, state: StereoState | None = None) -> Path:
     """Per-point CSV: left reference pixel (x, y), position X, Y, Z and displacement U, V, W, D (left camera
-    frame, mm), ZNCC, triangulation residual (px) and status. ``state=None`` writes the reference shape."""
+    frame, mm), ZNCC, triangulation residual (px), status, and the uncertainty (:data:`SIGMA_COLUMNS`, µm).
+    ``state=None`` writes the reference shape."""
     path = Path(path)
     with atomic_writer(path, "w", newline="") as handle:
         writer = csv.writer(handle)
@@ -52,6 +99,7 @@ def write_state_csv(path: str | Path, shape: StereoShape, state: StereoState | N
 def write_state_vtk(path: str | Path, shape: StereoShape, state: StereoState | None = None) -> Path:
     """Legacy-VTK POLYDATA of the valid points with displacement (vector), D, ZNCC and residual (scalars)."""
     path = Path(path)
+    sig = {k: v for k, v in state_sigmas(shape, state).items() if k != "sigma_flag"}
     if state is None:
         valid = shape.valid
         X, U = shape.X_mm[valid], np.zeros((int(valid.sum()), 3))
@@ -67,22 +115,48 @@ def write_state_vtk(path: str | Path, shape: StereoShape, state: StereoState | N
     lines += [f"POINT_DATA {n}", "VECTORS displacement_mm double"]
     lines += [f"{a:.9g} {b:.9g} {c:.9g}" for a, b, c in U]
     for name, values in (("D_mm", np.linalg.norm(U, axis=1)), ("zncc", zncc), ("residual_px", residual),
-                         ("x_px", shape.x[valid]), ("y_px", shape.y[valid])):
+                         ("x_px", shape.x[valid]), ("y_px", shape.y[valid]),
+                         *((name, values[valid]) for name, values in sig.items())):
         lines += [f"SCALARS {name} double 1", "LOOKUP_TABLE default"] + [f"{v:.9g}" for v in values]
     atomic_write_text(path, "\n".join(lines) + "\n")
     return path
 
 
 SUMMARY_COLUMNS = ("state", "left", "right", "result", "points", "measured", "measured_fraction",
-                   "median_residual_px", "p95_residual_px", "mean_D_mm", "error")
+                   "median_residual_px", "p95_residual_px", "mean_D_mm",
+                   "median_sigma_U_um", "median_sigma_V_um", "median_sigma_W_um",
+                   "median_sigma_U_calib_um", "median_sigma_V_calib_um", "median_sigma_W_calib_um",
+                   "sigma_flagged_fraction", "noise_source", "error")
+
+
+def sigma_summary(shape: StereoShape, state: StereoState | None = None) -> dict:
+    """Per-state figures of the uncertainty: the median random and calibration sigma of U, V, W over the trusted
+    points (of X, Y, Z for the reference shape, whose U is zero), µm; the flagged fraction of the measured points;
+    where the noise came from."""
+    sig = state_sigmas(shape, state)
+    flag = sig["sigma_flag"]
+    valid = shape.valid if state is None else state.valid
+    trusted = valid & (flag == 0)
+    out = {}
+    for c, r in zip("UVW", "XYZ"):
+        name = c if state is not None else r
+        for kind in ("", "_calib"):
+            values = sig[f"sigma_{name}{kind}_um"][trusted]
+            values = values[np.isfinite(values)]
+            out[f"median_sigma_{c}{kind}_um"] = float(np.median(values)) if values.size else float("nan")
+    out["sigma_flagged_fraction"] = float(np.count_nonzero(valid & (flag == 1)) / max(1, int(valid.sum())))
+    unc = shape.match_uncertainty
+    out["noise_source"] = unc.noise_source if unc is not None else ""
+    return out
 
 
 def write_state_summary(path: str | Path, rows: list[dict]) -> Path:
     """One row per state (the reference first): files, measured / measurable points, median and 95th percentile
-    of the triangulation residual (px), mean D (mm), and the error of a state that was refused.
+    of the triangulation residual (px), mean D (mm), the uncertainty (:func:`sigma_summary`; the reference row
+    holds the sigma of X, Y, Z under the U, V, W names) and the error of a state that was refused.
 
     ``rows``: dicts with ``state``, ``left``, ``right``, ``quality`` (:class:`StereoQuality` or None) and
-    optionally ``mean_D_mm`` and ``error``.
+    optionally ``mean_D_mm``, the keys of :func:`sigma_summary` and ``error``.
     """
     with atomic_writer(Path(path), "w", newline="") as handle:
         writer = csv.writer(handle)
@@ -94,5 +168,8 @@ def write_state_summary(path: str | Path, rows: list[dict]) -> Path:
                              "" if q is None else _fmt(q.measured_fraction),
                              "" if q is None else _fmt(q.median_residual_px),
                              "" if q is None else _fmt(q.p95_residual_px),
-                             _fmt(row["mean_D_mm"]) if "mean_D_mm" in row else "", row.get("error", "")])
+                             _fmt(row["mean_D_mm"]) if "mean_D_mm" in row else "",
+                             *(_fmt(row[c]) if c in row else "" for c in SUMMARY_COLUMNS[10:16]),
+                             _fmt(row["sigma_flagged_fraction"]) if "sigma_flagged_fraction" in row else "",
+                             row.get("noise_source", ""), row.get("error", "")])
     return Path(path)

@@ -19,7 +19,7 @@ from workbench.cli import main
 SHIFT_PX = (2.3, -1.7)
 ROI = "30,30,170,130"
 COLUMNS = ["x", "y", "u", "v", "zncc", "iterations", "status", "status_name",
-           *PARAMETER_NAMES[1:6], *PARAMETER_NAMES[7:]]
+           *PARAMETER_NAMES[1:6], *PARAMETER_NAMES[7:], "sigma_u_px", "sigma_v_px", "residual_ratio", "sigma_flag"]
 
 
 @pytest.fixture(scope="module")
@@ -59,6 +59,10 @@ def test_dic_measures_the_imposed_shift(pair, tmp_path, capsys):
     assert abs(u.mean() - SHIFT_PX[0]) < 5e-4 and abs(v.mean() - SHIFT_PX[1]) < 5e-4
     printed = capsys.readouterr().out
     assert f"wrote {out}" in printed and "converged 140" in printed
+    # every converged point has a positive sigma, and the output says where the noise came from
+    sigma = np.array([[float(r[COLUMNS.index(c)]) for c in ("sigma_u_px", "sigma_v_px")] for r in converged])
+    assert np.all(np.isfinite(sigma)) and np.all(sigma > 0)
+    assert "noise from the match residuals" in printed
 
 
 def test_a_negative_seed_guess_is_an_option_value(pair, tmp_path):

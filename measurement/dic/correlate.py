@@ -120,6 +120,9 @@ class DICResult:
     settings : DICSettings
     timings_s : dict
         Wall time of the stages, s.
+    uncertainty : MatchUncertainty or None
+        Per-point uncertainty, when computed (:func:`measurement.uncertainty.match.dic_uncertainty`); its columns
+        (``sigma_u_px``, ``sigma_v_px``, ``residual_ratio``, ``sigma_flag``) are then written by :meth:`to_csv`.
     """
 
     x: np.ndarray
@@ -135,6 +138,7 @@ class DICResult:
     grid_shape: tuple
     settings: DICSettings
     timings_s: dict = field(default_factory=dict)
+    uncertainty: object = field(default=None, repr=False)
 
     @property
     def converged(self) -> np.ndarray:
@@ -169,15 +173,18 @@ class DICResult:
         """
         path = Path(path)
         names = [Status(int(s)).name.lower() for s in self.status]
+        extra = self.uncertainty.columns() if self.uncertainty is not None else {}
         with atomic_writer(path, "w", newline="") as handle:
             writer = csv.writer(handle)
             writer.writerow(["x", "y", "u", "v", "zncc", "iterations", "status", "status_name",
-                             *PARAMETER_NAMES[1:6], *PARAMETER_NAMES[7:]])
+                             *PARAMETER_NAMES[1:6], *PARAMETER_NAMES[7:], *extra])
             for k in range(self.x.size):
                 p = self.parameters[k]
                 writer.writerow([int(self.x[k]), int(self.y[k]), _fmt(self.u[k]), _fmt(self.v[k]),
                                  _fmt(self.zncc[k]), int(self.iterations[k]), int(self.status[k]), names[k],
-                                 *(_fmt(val) for val in p[1:6]), *(_fmt(val) for val in p[7:])])
+                                 *(_fmt(val) for val in p[1:6]), *(_fmt(val) for val in p[7:]),
+                                 *(str(int(values[k])) if values.dtype.kind == "i" else _fmt(values[k])
+                                   for values in extra.values())])
         return path
 
 

@@ -114,8 +114,13 @@ class NoiseGainTable:
     kappa_white : ndarray (P, P)
         The same for unweighted white noise (what the residual sees).
     interpolation_error : ndarray (P, P)
-        Mean squared error of the interpolant on this texture at each phase, relative to the texture's variance:
+        Mean squared error of the interpolant on the image at each phase, relative to the image's variance:
         ``sum P |H_t - exp(i w t)|^2 / sum P`` (a residual the noise does not explain, largest for fine speckle).
+        The image's noise is in ``P`` too: :meth:`signal_interpolation_error` takes it out.
+    interpolation_error_white : ndarray (P, P)
+        The same for white noise.
+    power_total, power_per_noise_variance : float
+        ``sum P`` and what a unit white-noise variance adds to it.
     """
 
     phases_px: np.ndarray
@@ -123,11 +128,26 @@ class NoiseGainTable:
     kappa_v: np.ndarray
     kappa_white: np.ndarray
     interpolation_error: np.ndarray
+    interpolation_error_white: np.ndarray
+    power_total: float = 0.0
+    power_per_noise_variance: float = 0.0
+
+    def signal_interpolation_error(self, tx, ty, noise_variance: float) -> np.ndarray:
+        """:attr:`interpolation_error` of the texture alone (the noise's share of the spectrum taken out), at
+        fractional positions (tx, ty), relative to the texture's variance."""
+        measured = self.lookup("interpolation", tx, ty)
+        white = self.lookup("interpolation_white", tx, ty)
+        noise = float(noise_variance) * self.power_per_noise_variance
+        signal = self.power_total - noise
+        if not signal > 0:
+            return np.zeros_like(measured)
+        return np.clip((measured * self.power_total - white * noise) / signal, 0.0, None)
 
     def lookup(self, which: str, tx, ty) -> np.ndarray:
         """Bilinear lookup at fractional positions (any real; folded to [0, 0.5])."""
         table = {"u": self.kappa_u, "v": self.kappa_v, "white": self.kappa_white,
-                 "interpolation": self.interpolation_error}[which]
+                 "interpolation": self.interpolation_error,
+                 "interpolation_white": self.interpolation_error_white}[which]
         fx = _fold(np.asarray(tx, float))
         fy = _fold(np.asarray(ty, float))
         step = self.phases_px[1] - self.phases_px[0]
@@ -158,6 +178,7 @@ def interpolation_noise_gain(reference: np.ndarray, degree: int, *, crop_px: int
     ys = np.unique(np.clip(np.linspace(y0, y1 - size, 2).astype(int), 0, max(0, values.shape[0] - size)))
     taper = np.outer(np.hanning(size), np.hanning(size))
     power = np.zeros((size, size))
+    tiles = 0
     for ty in ys:
         for tx in xs:
             tile = values[ty:ty + size, tx:tx + size]
@@ -166,6 +187,7 @@ def interpolation_noise_gain(reference: np.ndarray, degree: int, *, crop_px: int
                 continue
             spectrum = np.fft.fft2((tile - tile.mean()) * taper)
             power += np.abs(spectrum) ** 2
+            tiles += 1
     w = 2 * np.pi * np.fft.fftfreq(size)
     wx, wy = np.meshgrid(w, w)                               # [row = y freq, col = x freq]
     weight_u = power * wx ** 2
@@ -180,7 +202,11 @@ def interpolation_noise_gain(reference: np.ndarray, degree: int, *, crop_px: int
     kw = np.outer(A.mean(axis=1), A.mean(axis=1))
     # |C_j(y) C_i(x) - E_j(y) E_i(x)|^2 = A_j A_i + 1 - 2 Re(D_j D_i)
     ke = (A @ power.T @ A.T + total_p - 2.0 * (D.real @ power.T @ D.real.T - D.imag @ power.T @ D.imag.T)) / total_p
-    return NoiseGainTable(_PHASES.copy(), ku, kv, kw, ke)
+    flat = np.ones((size, size))
+    ke_white = (A @ flat @ A.T + flat.sum() - 2.0 * (D.real @ flat @ D.real.T - D.imag @ flat @ D.imag.T)) / flat.sum()
+    # white noise of unit variance adds sum(taper^2) to every frequency bin of every tile
+    per_variance = float(tiles * np.sum(taper ** 2) * size * size)
+    return NoiseGainTable(_PHASES.copy(), ku, kv, kw, ke, ke_white, float(np.sum(power)), per_variance)
 
 
 # ---------------------------------------------------------------------------------------------------------------
@@ -484,7 +510,7 @@ def match_uncertainty(subsets: ReferenceSubsets, result: DICResult, noise_target
         # residual check: sum r^2 = Df^2 (2 - 2 ZNCC) against the noise
         pixels = subsets.subset_size ** 2
         observed = subsets.delta_f[idx] ** 2 * (2.0 - 2.0 * result.zncc[idx])
-        ke = subsets.gains.lookup("interpolation", pu, pv).mean(axis=1)
+        ke = subsets.gains.signal_interpolation_error(pu, pv, float(np.median(var_f))).mean(axis=1)
         # the interpolant's own error on this texture is a residual too (fine speckle), not a misfit
         explained = (pixels - npar - 2) * (var_f + kw * var_t) + ke * np.maximum(
             subsets.delta_f[idx] ** 2 - pixels * var_f, 0.0)
@@ -542,8 +568,11 @@ def noise_from_residuals(subsets_values: np.ndarray, x_px, y_px, result: DICResu
         gains = interpolation_noise_gain(values, bspline.degree_of(interpolation))
     pu, pv = _warp_phases(result.parameters[ok], half)
     kw = gains.lookup("white", pu, pv).mean(axis=1)
-    ke = gains.lookup("interpolation", pu, pv).mean(axis=1)
-    var = np.maximum(residual_var - ke * delta_f2 / (pixels - npar - 2), 0.0) / (1.0 + kw)
+    # the interpolation error's estimate needs the noise (its share of the spectrum): a few fixed-point steps
+    var = residual_var / (1.0 + kw)
+    for _ in range(3):
+        ke = gains.signal_interpolation_error(pu, pv, float(np.nanmedian(var))).mean(axis=1)
+        var = np.maximum(residual_var - ke * delta_f2 / (pixels - npar - 2), 0.0) / (1.0 + kw)
     good = np.isfinite(var) & np.isfinite(mean)
     mean, var = mean[good], var[good]
     edges = np.unique(np.quantile(mean, np.linspace(0, 1, bins + 1)))
@@ -563,3 +592,31 @@ def noise_from_residuals(subsets_values: np.ndarray, x_px, y_px, result: DICResu
     model = NoiseModel(float(np.sqrt(np.median(var))), float(np.sqrt(read2)), (1.0 / slope) if slope > 0 else None,
                        "match residuals", grey, med)
     return model
+
+
+def dic_uncertainty(reference, result: DICResult, noise_reference: NoiseModel | None = None,
+                    noise_target: NoiseModel | None = None, *,
+                    max_residual_ratio: float = DEFAULT_MAX_RESIDUAL_RATIO) -> MatchUncertainty:
+    """Uncertainty of a 2-D match in one call: :func:`reference_subsets` + :func:`match_uncertainty`.
+
+    Without ``noise_reference`` the noise is fitted to the match's residuals (:func:`noise_from_residuals`, both
+    images alike); ``noise_target`` defaults to ``noise_reference``.
+
+    Raises
+    ------
+    ValueError
+        Too few converged points to fit the noise from the residuals (and no model given).
+    """
+    settings = result.settings
+    prepared = reference if isinstance(reference, PreparedImage) else prepare_image(
+        np.asarray(reference), settings.interpolation, True, "reference", settings.lowpass_sigma_px)
+    half = settings.subset_size // 2
+    box = (int(result.x.min()) - half, int(result.y.min()) - half, int(result.x.max()) + half + 1,
+           int(result.y.max()) + half + 1) if result.x.size else None
+    gains = interpolation_noise_gain(prepared.values, prepared.spline.degree, box=box)
+    if noise_reference is None:
+        noise_reference = noise_from_residuals(prepared.values, result.x, result.y, result,
+                                               interpolation=settings.interpolation, gains=gains)
+    subsets = reference_subsets(prepared, result.x, result.y, settings.subset_size, settings.order, noise_reference,
+                                settings.interpolation, gains=gains)
+    return match_uncertainty(subsets, result, noise_target, max_residual_ratio=max_residual_ratio)

@@ -86,12 +86,22 @@ def dic_command(args) -> int:
         if str(err).startswith("seed point"):
             raise ValueError(f"--seed-point: {err}") from None
         raise
+    if result.converged.sum() >= 20:
+        from measurement.uncertainty.match import dic_uncertainty
+
+        # no static pair here: the noise is fitted to the match's own residuals (stated in the output)
+        result.uncertainty = dic_uncertainty(reference, result)
     result.to_csv(args.out)
     ok = result.converged
     counts = ", ".join(f"{name.lower()} {n}" for name, n in result.status_counts().items())
     print(f"{result.x.size} points ({counts}) in {result.timings_s['total']:.2f} s; wrote {args.out}")
     if report is not None:
         print(report.summary())
+    if result.uncertainty is not None:
+        summary = result.uncertainty.summary()
+        print(f"  uncertainty: median sigma u {summary['median_sigma_u_px']:.4f} px, v {summary['median_sigma_v_px']:.4f} "
+              f"px (noise from the {summary['noise_source']}: {result.uncertainty.noise_reference.sigma_grey:.3g} grey); "
+              f"{100 * summary['flagged_fraction']:.1f} % of the points flagged (residual above the noise)")
     if ok.any():
         print(f"  u {np.nanmin(result.u):.4f} .. {np.nanmax(result.u):.4f} px, v {np.nanmin(result.v):.4f} .. "
               f"{np.nanmax(result.v):.4f} px, median ZNCC {np.median(result.zncc[ok]):.4f}, "
