@@ -1,0 +1,127 @@
+"""The per-point uncertainty of stereo results (measurement/uncertainty/stereo.py) against the scatter it predicts.
+
+A speckled plate is rendered once through the paper rig (test scale) in a reference and a 1 mm-translated state;
+each of 6 draws adds fresh sensor noise (1 grey read + 8-bit quantisation) to all four images and measures the
+reference shape and the state. Each point's deviation from its own mean over the draws is its random error
+(anything the noise does not change -- render, interpolation and calibration errors -- drops out). Claims (issue
+36's random part): std(error / sigma) within [0.9, 1.1] and 95 % coverage within [0.93, 0.97] for X, Y, Z of the
+reference shape and U, V, W of the state; an estimator that drops the left reference image's noise, which all
+three matches share, fails them.
+"""
+import numpy as np
+import pytest
+
+from measurement.dic import DICSettings
+from measurement.speckle_quality import NoiseModel
+from measurement.stereo_dic import measure_state, reference_shape
+from measurement.stereo_io import SIGMA_COLUMNS, state_sigmas
+from measurement.uncertainty.stereo import sigmas, state_covariances_mm2, triangulation_sensitivity
+from scenes.noise import SensorNoise
+from scenes.render import render_view
+from scenes.specimens import SpeckledPlate
+from workbench.experiments.calibration.views import sensor_spec_for
+from workbench.rigs import paper_rig
+
+RIG = paper_rig(0.25)
+MM_PER_PX = 85.0 / RIG.left.width
+SETTINGS = DICSettings(subset_size=33, step=10, order=2)
+MOVE_MM = np.array([0.0, -1.0, 0.0])
+READ_GREY = 1.0
+DRAWS = 6
+
+
+def _plate_pose():
+    axis_left = np.array([0.0, 0.0, 1.0])
+    axis_right = RIG.R_right_from_left.T @ axis_left
+    z = axis_left + axis_right
+    z /= np.linalg.norm(z)
+    x = np.array([1.0, 0.0, 0.0]) - z[0] * z
+    x /= np.linalg.norm(x)
+    return np.column_stack([x, np.cross(z, x), z]), RIG.optical_axes_meeting_point_mm()
+
+
+def _roi():
+    w, h = RIG.left.width, RIG.left.height
+    return (int(0.3 * w), int(0.3 * h), int(0.7 * w), int(0.7 * h))
+
+
+@pytest.fixture(scope="module")
+def draws():
+    plate = SpeckledPlate(width_mm=70.0, height_mm=55.0, texel_mm=MM_PER_PX / 4, speckle_mm=4 * MM_PER_PX, seed=3)
+    texture = plate.texture()
+    R_world_from_plate, centre_mm = _plate_pose()
+    clean = {}
+    for state, offset in (("ref", np.zeros(3)), ("def", MOVE_MM)):
+        surface = plate.surface(R_world_from_plate, centre_mm + offset, texture)
+        for k, side in enumerate(("left", "right")):
+            R_cw, t_cw = RIG.pose(side)
+            clean[f"{side}_{state}"] = render_view(sensor_spec_for(RIG, side), R_cw, t_cw, [surface], spp=64,
+                                                   seed=10 * k + (state == "def")).image_grey
+    noise = SensorNoise(read_noise_grey=READ_GREY, bit_depth=8)
+    sigma = float(np.hypot(READ_GREY, 12 ** -0.5))          # read noise and 8-bit quantisation
+    model = NoiseModel(sigma, sigma, None, "given")
+    cams = (RIG.left, RIG.right, RIG.R_right_from_left, RIG.T_right_from_left_mm)
+    out = []
+    for r in range(DRAWS):
+        images = {name: noise.apply(image, seed=1000 * r + j) for j, (name, image) in enumerate(clean.items())}
+        shape = reference_shape(*cams, images["left_ref"], images["right_ref"], SETTINGS, roi=_roi(),
+                                noise={"left": model, "right": model})
+        state = measure_state(*cams, shape, images["left_ref"], images["left_def"], images["right_def"], SETTINGS)
+        out.append((shape, state))
+    return out
+
+
+def _z(values, sigma):
+    values, sigma = np.asarray(values), np.asarray(sigma)
+    keep = np.all(np.isfinite(values), axis=(0, 2)) & np.all(np.isfinite(sigma), axis=(0, 2))
+    n = values.shape[0]
+    deviation = (values - values.mean(axis=0))[:, keep] * np.sqrt(n / (n - 1))
+    return deviation / sigma[:, keep]
+
+
+def _check(z, what):
+    spread = z.std(axis=(0, 1))
+    coverage = np.mean(np.abs(z) < 1.959964, axis=(0, 1))
+    print(f"{what}: std(z) {spread.round(3)}, 95 % coverage {coverage.round(3)} over {z.shape[1]} points x "
+          f"{z.shape[0]} draws")
+    assert np.all((spread > 0.9) & (spread < 1.1)), spread
+    assert np.all((coverage > 0.93) & (coverage < 0.97)), coverage
+
+
+def test_sigma_of_the_reference_shape_is_honest(draws):
+    _check(_z([s.X_mm for s, _ in draws], [sigmas(s.cov_X_mm2) for s, _ in draws]), "X, Y, Z")
+
+
+def test_sigma_of_the_displacement_is_honest(draws):
+    _check(_z([st.U_mm for _, st in draws], [sigmas(st.cov_U_mm2) for _, st in draws]), "U, V, W")
+
+
+def test_dropping_the_shared_reference_noise_fails_the_claim(draws):
+    """Without the left reference's part (shared by all three matches) sigma_U is too small: the claim (std(z) within
+    [0.9, 1.1] for every component) fails -- here U and V read ~1.35 and ~1.2, W ~1.08."""
+    z_all = []
+    sig = []
+    for shape, state in draws:
+        G_ref = triangulation_sensitivity(RIG.left, RIG.right, RIG.R_right_from_left, RIG.T_right_from_left_mm,
+                                          shape.X_mm)
+        G_def = triangulation_sensitivity(RIG.left, RIG.right, RIG.R_right_from_left, RIG.T_right_from_left_mm,
+                                          state.X_mm)
+        zero = np.zeros_like(shape.match_uncertainty.cov_reference_px2)
+        _, cov_U = state_covariances_mm2(G_ref, G_def, zero, shape.match_uncertainty.cov_target_px2,
+                                         state.left_uncertainty.cov_target_px2,
+                                         state.right_uncertainty.cov_target_px2)
+        z_all.append(state.U_mm)
+        sig.append(sigmas(cov_U))
+    assert np.any(_z(z_all, sig).std(axis=(0, 1)) > 1.1)
+
+
+def test_result_columns_carry_the_sigma(draws):
+    """The CSV columns are the covariances' square roots in µm; the reference shape's sigma_U is 0."""
+    shape, state = draws[0]
+    columns = state_sigmas(shape, state)
+    assert tuple(columns) == SIGMA_COLUMNS
+    ok = state.valid
+    assert np.allclose(columns["sigma_W_um"][ok], 1e3 * np.sqrt(state.cov_U_mm2[ok, 2, 2]), equal_nan=True)
+    reference = state_sigmas(shape)
+    assert np.all(reference["sigma_U_um"][shape.valid] == 0.0)
+    assert np.isfinite(reference["sigma_Z_um"][shape.valid]).mean() > 0.95
