@@ -79,6 +79,8 @@ class RenderConfig:
                                        "(pinhole: exact coverage, Gauss-Legendre quadrature of the speckle; else "
                                        "Mitsuba at spp), 'mitsuba' always Monte Carlo at spp",
                                choices=("auto", "mitsuba"))
+    noise_seed: int | None = _f(None, "seed of the sensor noise alone (absent: the scenario's seed): the same scene "
+                                      "with a new noise draw, e.g. to test an uncertainty", min=0, max=2 ** 31 - 1)
     supersample: int = _f(1, "speckle states: pixels rendered supersample x supersample finer, then the lens' "
                              "diffraction and each block's mean, so the optics low-pass a sharp paint before the "
                              "pixels sample it as in a camera (1: the box-filtered pixels, enough for soft speckle "

@@ -1,6 +1,7 @@
 """``workbench reproduce WHAT``: the paper's checks, each writing a report.
 
-WHAT: agreement, calibration, rigid-motion, bending, fig6-causes, paper, dic-accuracy, depth-of-field, star, catalog.
+WHAT: agreement, calibration, rigid-motion, bending, fig6-causes, paper, dic-accuracy, depth-of-field, star, catalog,
+uncertainty.
 """
 from __future__ import annotations
 
@@ -102,6 +103,15 @@ def add_parser(sub) -> None:
     ct.add_argument("--store", type=Path, default=None,
                     help="dataset store (default $WORKBENCH_STORE or ~/.cache/scheimpflug-dic-workbench/datasets)")
     ct.add_argument("--out", type=Path, required=True)
+    un = repsub.add_parser("uncertainty", help="is the per-point sigma honest? coverage of the instrument's "
+                                               "uncertainty over noise draws of planar and stereo scenes (issue 36)")
+    un.add_argument("--quick", action="store_true", help="fewer draws and one specimen (CI scale)")
+    un.add_argument("--planar-only", action="store_true", help="only the planar (2-D) classes: no rendering")
+    un.add_argument("--draws", type=positive_int_arg, default=None,
+                    help="noise draws per class (default 12 planar / 6 stereo; 6 / 3 with --quick)")
+    un.add_argument("--store", type=Path, default=None,
+                    help="dataset store (default $WORKBENCH_STORE or ~/.cache/scheimpflug-dic-workbench/datasets)")
+    un.add_argument("--out", type=Path, required=True)
     f6 = repsub.add_parser("fig6-causes", help="which simulated error sources explain the paper's Fig 6 error growth "
                                                 "(a study on Dask, resumable)")
     f6.add_argument("--study", type=Path, default=None, help="study file (default studies/fig6_causes.toml)")
@@ -151,6 +161,24 @@ def reproduce_catalog_command(args) -> int:
         print(f"{m['name']}: noise floor {m['noise_floor_um']:.3g} µm; " + "; ".join(
             f"{k} {'met' if x['met'] else 'MISSED'}" for k, x in v.items()))
     print(f"report: {args.out / 'report.md'}")
+    return 0
+
+
+def reproduce_uncertainty_command(args) -> int:
+    from workbench.experiments.uncertainty.run import run
+
+    output_folder(args.out)
+    if args.draws is not None and args.draws < 2:
+        raise ValueError(f"--draws {args.draws}: at least 2 noise draws are needed")
+    result = run(args.out, quick=args.quick, draws_planar=args.draws, draws_stereo=args.draws, store=args.store,
+                 stereo=not args.planar_only)
+    for r in result["classes"]:
+        v = r["verdict"]
+        figures = ", ".join(f"{n} std(z) {f['std_z']:.3f} cov95 {f['coverage_95']:.3f}"
+                            for n, f in r["components"].items())
+        print(f"{r['class']}: {figures}; flagged {r['flagged_fraction']:.3f}; "
+              + ", ".join(f"{k} {'met' if ok else 'MISSED'}" for k, ok in v.items()))
+    print(f"report: {args.out / 'report.html'}")
     return 0
 
 
@@ -331,4 +359,5 @@ HANDLERS = {
     ("reproduce", "fig6-causes"): fig6_causes_command,
     ("reproduce", "star"): reproduce_star_command,
     ("reproduce", "catalog"): reproduce_catalog_command,
+    ("reproduce", "uncertainty"): reproduce_uncertainty_command,
 }

@@ -361,8 +361,8 @@ def render_stereo_states(truth, surfaces_of_state, n_states: int, out_dir: Path,
                          seed: int, desc: str, progress: bool = True, drift: CameraDrift | None = None,
                          illumination: IlluminationChange | None = None, mc_target_grey: float | None = None,
                          mc_log: list | None = None, renderer: str = "auto",
-                         render_log: list | None = None, optics=None, supersample: int = 1
-                         ) -> list[dict[str, str]]:
+                         render_log: list | None = None, optics=None, supersample: int = 1,
+                         noise_seed: int | None = None) -> list[dict[str, str]]:
     """Render every state in both cameras as 8-bit ``left_KK.png`` / ``right_KK.png`` (atomic writes).
 
     ``truth`` provides ``specs`` and ``camera_poses``; ``surfaces_of_state(k)`` the scene of state k. One seed per
@@ -440,7 +440,8 @@ def render_stereo_states(truth, surfaces_of_state, n_states: int, out_dir: Path,
             # negative charge, and shot noise needs the exposure >= 0.
             image = np.maximum(image, 0.0)
             names[side] = f"{side}_{k:0{digits}d}.png"
-            atomic_write_image(out_dir / names[side], to_image_dtype(noise.apply(image, seed=image_seed), 8))
+            noise_image_seed = image_seed if noise_seed is None else noise_seed * 100003 + 2 * k + c
+            atomic_write_image(out_dir / names[side], to_image_dtype(noise.apply(image, seed=noise_image_seed), 8))
         files.append(names)
     return files
 

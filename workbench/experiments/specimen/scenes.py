@@ -341,7 +341,7 @@ def render_specimen(scenario, out_dir, *, progress: bool = True, overwrite: bool
     truth.files = render_stereo_states(
         truth, lambda k: truth.specimen.surfaces(k, *truth.pose), K, out_dir, noise, spp=r.spp, seed=scenario.seed,
         desc=f"rendering {src.name}", progress=progress, renderer=r.speckle_renderer, render_log=render_log,
-        mc_log=mc_log, mc_target_grey=mc_target, optics=optics, supersample=r.supersample)
+        mc_log=mc_log, mc_target_grey=mc_target, optics=optics, supersample=r.supersample, noise_seed=r.noise_seed)
     truth.info.update(render_info(rig, scenario.rig.scale, r.spp, scenario.seed, r.read_noise_grey, mc_target, mc_log,
                                   render_log, optics))
     for path in sources:
