@@ -268,6 +268,9 @@ class ReferenceSubsets:
         The (u, v) block of ``H0^-1 J^T S_f J H0^-1``, px^2: the reference noise's part of every match.
     var_parameters_reference : ndarray (N, np)
         Its diagonal over all shape parameters (px^2, px^2/px^2 for the gradients, ...).
+    uv_rows : ndarray (N, 2, np)
+        The u and v rows of ``H0^-1``: a point's (u, v) error is ``uv_rows J^T n`` for image noise ``n`` on its
+        subset (what correlates neighbouring points, :mod:`measurement.uncertainty.strain`).
     mean_grey, variance_reference : ndarray (N,)
         Subset mean grey level and mean reference noise variance (grey^2).
     delta_f : ndarray (N,)
@@ -282,6 +285,7 @@ class ReferenceSubsets:
     y: np.ndarray
     cov_uv_reference: np.ndarray = field(repr=False)
     var_parameters_reference: np.ndarray = field(repr=False)
+    uv_rows: np.ndarray = field(repr=False)
     mean_grey: np.ndarray = field(repr=False)
     variance_reference: np.ndarray = field(repr=False)
     delta_f: np.ndarray = field(repr=False)
@@ -344,6 +348,7 @@ def reference_subsets(reference, x_px, y_px, subset_size: int, order: int, noise
     ok &= np.isfinite(mean_grey)
     cov_uv = np.full((xs.size, 2, 2), np.nan)
     var_all = np.full((xs.size, npar), np.nan)
+    uv_rows = np.full((xs.size, 2, npar), np.nan)
     if ok.any():
         idx = np.flatnonzero(ok)
         h = _scaled_inverse(hinv[idx])
@@ -361,12 +366,13 @@ def reference_subsets(reference, x_px, y_px, subset_size: int, order: int, noise
         cov = inv0 @ hw[eig_ok] @ inv0
         cov_uv[good] = cov[:, [0, nm]][:, :, [0, nm]]
         var_all[good] = np.einsum("kii->ki", cov)
+        uv_rows[good] = inv0[:, [0, nm], :]
         ok[idx[~eig_ok]] = False
     if gains is None:
         box = (int(xs.min()) - half, int(ys.min()) - half, int(xs.max()) + half + 1, int(ys.max()) + half + 1) \
             if xs.size else None
         gains = interpolation_noise_gain(values, degree, box=box)
-    return ReferenceSubsets(xs, ys, cov_uv, var_all, mean_grey, mean_var, delta_f, ok, int(subset_size), int(order),
+    return ReferenceSubsets(xs, ys, cov_uv, var_all, uv_rows, mean_grey, mean_var, delta_f, ok, int(subset_size), int(order),
                             gains, noise_reference)
 
 

@@ -1,0 +1,275 @@
+"""Random uncertainty of window strain: the windowed fit's weights over displacements whose errors correlate.
+
+A strain-window value (:func:`measurement.strain.surface_strain`, ``window=k``) is, to first order, a weighted sum
+of the window's displacements: with ``(xi, eta)`` the in-plane coordinates of the window points about the node and
+``w1, w2`` the least-squares weights of ``d/dxi``, ``d/deta`` at the node (design ``1, xi, eta`` or also
+``xi^2, xi eta, eta^2``),
+
+    E11 = sum_p w1_p e1 . U_p,   E22 = sum_p w2_p e2 . U_p,   E12 = 1/2 sum_p (w2_p e1 + w1_p e2) . U_p.
+
+Neighbouring points' displacement errors are *not* independent: their subsets overlap (step < subset) and share
+the noise of the same pixels. Each image's noise moves a point's match by ``A_p(x) = uv_rows_p J_p(x)`` per grey
+level at pixel ``x`` of its subset (:class:`measurement.uncertainty.match.ReferenceSubsets`), so two points share
+
+    C_pq = sum over their common pixels of A_p(x) A_q(x)^T sigma^2(x)          (2 x 2, px^2)
+
+(:func:`pair_covariances`, once per reference). Each image enters a displacement through its own 3 x 2 block of
+the triangulation sensitivities (:mod:`measurement.uncertainty.stereo`: the left reference image through
+``G_L + G_R - G_R^ref``, the right reference through ``-G_R^ref``, the deformed images through ``G_L``, ``G_R``);
+the target images' noise is counted in the reference's pixel layout, scaled by each point's target-to-reference
+variance ratio (which holds the interpolant's noise gain). Then ``var E = sum_images sum_p sum_q b_p^T C_pq b_q``.
+
+The triangle (Cosserat) method has no such fit: its sigma is not computed here (NaN).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numba
+import numpy as np
+
+from measurement.dic.correlate import PreparedImage
+
+from .match import ReferenceSubsets
+
+
+@dataclass(frozen=True)
+class PairCovariances:
+    """Covariances of the (u, v) match errors of neighbouring grid points from one image's noise.
+
+    Attributes
+    ----------
+    reach : int
+        R: neighbours up to R grid steps away in each direction share pixels.
+    C : ndarray (N, 2R + 1, 2R + 1, 2, 2)
+        ``C[p, R + di, R + dj]`` = covariance of point p's (u, v) error with that of the point (di, dj) grid steps
+        away (NaN where there is none), px^2, for the reference image's noise.
+    index : ndarray of int64 (rows, cols)
+        Point index of every grid node, -1 where none.
+    """
+
+    reach: int
+    C: np.ndarray = field(repr=False)
+    index: np.ndarray = field(repr=False)
+
+
+@numba.njit(cache=True, inline="always")
+def _monomials(dx, dy, order, out):
+    out[0] = 1.0
+    out[1] = dx
+    out[2] = dy
+    if order == 2:
+        out[3] = 0.5 * dx * dx
+        out[4] = dx * dy
+        out[5] = 0.5 * dy * dy
+
+
+@numba.njit(cache=True, parallel=True)
+def _pairs(gx, gy, variance, xs, ys, rows_uv, half, order, index, gi, gj, reach, out):
+    nm = 3 if order == 1 else 6
+    n_rows, n_cols = index.shape
+    for p in numba.prange(xs.size):
+        mp = np.empty(6)
+        mq = np.empty(6)
+        if not np.isfinite(rows_uv[p, 0, 0]):
+            continue
+        for a in range(2 * reach + 1):
+            for b in range(2 * reach + 1):
+                i, j = gi[p] + a - reach, gj[p] + b - reach
+                if i < 0 or j < 0 or i >= n_rows or j >= n_cols:
+                    continue
+                q = index[i, j]
+                if q < 0 or not np.isfinite(rows_uv[q, 0, 0]):
+                    continue
+                ox, oy = xs[q] - xs[p], ys[q] - ys[p]
+                x0, x1 = max(-half, ox - half), min(half, ox + half)
+                y0, y1 = max(-half, oy - half), min(half, oy + half)
+                c00 = c01 = c10 = c11 = 0.0
+                for dy in range(y0, y1 + 1):
+                    for dx in range(x0, x1 + 1):
+                        X, Y = xs[p] + dx, ys[p] + dy
+                        fx, fy, w = gx[Y, X], gy[Y, X], variance[Y, X]
+                        _monomials(float(dx), float(dy), order, mp)
+                        _monomials(float(dx - ox), float(dy - oy), order, mq)
+                        pu = pv = qu = qv = 0.0
+                        for k in range(nm):
+                            pu += (rows_uv[p, 0, k] * fx + rows_uv[p, 0, nm + k] * fy) * mp[k]
+                            pv += (rows_uv[p, 1, k] * fx + rows_uv[p, 1, nm + k] * fy) * mp[k]
+                            qu += (rows_uv[q, 0, k] * fx + rows_uv[q, 0, nm + k] * fy) * mq[k]
+                            qv += (rows_uv[q, 1, k] * fx + rows_uv[q, 1, nm + k] * fy) * mq[k]
+                        c00 += w * pu * qu
+                        c01 += w * pu * qv
+                        c10 += w * pv * qu
+                        c11 += w * pv * qv
+                out[p, a, b, 0, 0] = c00
+                out[p, a, b, 0, 1] = c01
+                out[p, a, b, 1, 0] = c10
+                out[p, a, b, 1, 1] = c11
+
+
+def pair_covariances(reference: PreparedImage, subsets: ReferenceSubsets, grid_index: np.ndarray,
+                     grid_shape: tuple[int, int], step_px: int) -> PairCovariances:
+    """:class:`PairCovariances` of a reference's subsets on their grid (module notes).
+
+    Parameters
+    ----------
+    reference : PreparedImage (with gradients)
+    subsets : ReferenceSubsets of the same points
+    grid_index : ndarray (N, 2)
+        (row, col) of each point in the grid; grid_shape : (rows, cols); step_px : the grid step.
+    """
+    half = subsets.subset_size // 2
+    reach = min((2 * half) // int(step_px), max(grid_shape) - 1)
+    index = np.full(grid_shape, -1, dtype=np.int64)
+    gi = np.asarray(grid_index[:, 0], dtype=np.int64)
+    gj = np.asarray(grid_index[:, 1], dtype=np.int64)
+    index[gi, gj] = np.arange(gi.size)
+    values = reference.values
+    variance = subsets.noise_reference.sigma_at(np.where(np.isfinite(values), values, 0.0)) ** 2
+    C = np.full((gi.size, 2 * reach + 1, 2 * reach + 1, 2, 2), np.nan)
+    rows = np.ascontiguousarray(np.where(subsets.ok[:, None, None], subsets.uv_rows, np.nan))
+    _pairs(reference.spline.grad_x, reference.spline.grad_y, variance, subsets.x, subsets.y, rows, half,
+           subsets.order, index, gi, gj, reach, C)
+    return PairCovariances(reach, C, index)
+
+
+@numba.njit(cache=True, parallel=True)
+def _strain_variance(index, X, e1g, e2g, node_ok, r, quadratic, C, reach, M, scale, out):
+    n_rows, n_cols = index.shape
+    n_img = M.shape[0]
+    nb = 6 if quadratic else 3
+    for node in numba.prange(n_rows * n_cols):
+        i0, j0 = node // n_cols, node % n_cols
+        out[i0, j0, 0] = out[i0, j0, 1] = out[i0, j0, 2] = np.nan
+        if not node_ok[i0, j0]:
+            continue
+        c = index[i0, j0]
+        pts = np.empty(((2 * r + 1) ** 2), dtype=np.int64)
+        di_ = np.empty(((2 * r + 1) ** 2), dtype=np.int64)
+        dj_ = np.empty(((2 * r + 1) ** 2), dtype=np.int64)
+        n = 0
+        for a in range(-r, r + 1):
+            for b in range(-r, r + 1):
+                i, j = i0 + a, j0 + b
+                if i < 0 or j < 0 or i >= n_rows or j >= n_cols:
+                    continue
+                p = index[i, j]
+                if p < 0 or not np.isfinite(X[p, 0]) or not np.isfinite(C[p, reach, reach, 0, 0]):
+                    continue
+                pts[n] = p
+                di_[n] = a
+                dj_[n] = b
+                n += 1
+        if n < nb:
+            continue
+        e1 = e1g[i0, j0]
+        e2 = e2g[i0, j0]
+        phi = np.empty((n, nb))
+        for k in range(n):
+            d0 = X[pts[k], 0] - X[c, 0]
+            d1 = X[pts[k], 1] - X[c, 1]
+            d2 = X[pts[k], 2] - X[c, 2]
+            xi = e1[0] * d0 + e1[1] * d1 + e1[2] * d2
+            eta = e2[0] * d0 + e2[1] * d1 + e2[2] * d2
+            phi[k, 0] = 1.0
+            phi[k, 1] = xi
+            phi[k, 2] = eta
+            if quadratic:
+                phi[k, 3] = xi * xi
+                phi[k, 4] = xi * eta
+                phi[k, 5] = eta * eta
+        normal = phi.T @ phi
+        weights = np.linalg.solve(normal, phi.T)     # (nb, n): rows 1 and 2 are d/dxi, d/deta at the node
+        w1 = weights[1]
+        w2 = weights[2]
+        var = np.zeros(3)
+        beta = np.empty((3, n, 2))
+        for img in range(n_img):
+            for k in range(n):
+                p = pts[k]
+                t1x = e1[0] * M[img, p, 0, 0] + e1[1] * M[img, p, 1, 0] + e1[2] * M[img, p, 2, 0]
+                t1y = e1[0] * M[img, p, 0, 1] + e1[1] * M[img, p, 1, 1] + e1[2] * M[img, p, 2, 1]
+                t2x = e2[0] * M[img, p, 0, 0] + e2[1] * M[img, p, 1, 0] + e2[2] * M[img, p, 2, 0]
+                t2y = e2[0] * M[img, p, 0, 1] + e2[1] * M[img, p, 1, 1] + e2[2] * M[img, p, 2, 1]
+                s = np.sqrt(scale[img, p])
+                beta[0, k, 0], beta[0, k, 1] = s * w1[k] * t1x, s * w1[k] * t1y
+                beta[1, k, 0], beta[1, k, 1] = s * w2[k] * t2x, s * w2[k] * t2y
+                beta[2, k, 0] = 0.5 * s * (w2[k] * t1x + w1[k] * t2x)
+                beta[2, k, 1] = 0.5 * s * (w2[k] * t1y + w1[k] * t2y)
+            for k in range(n):
+                p = pts[k]
+                for l in range(n):
+                    a = di_[l] - di_[k]
+                    b = dj_[l] - dj_[k]
+                    if a < -reach or a > reach or b < -reach or b > reach:
+                        continue
+                    cc = C[p, a + reach, b + reach]
+                    if not np.isfinite(cc[0, 0]):
+                        continue
+                    for comp in range(3):
+                        var[comp] += (beta[comp, k, 0] * (cc[0, 0] * beta[comp, l, 0] + cc[0, 1] * beta[comp, l, 1])
+                                      + beta[comp, k, 1] * (cc[1, 0] * beta[comp, l, 0]
+                                                            + cc[1, 1] * beta[comp, l, 1]))
+        for comp in range(3):
+            out[i0, j0, comp] = np.sqrt(max(var[comp], 0.0))
+
+
+def strain_sigma(pairs: PairCovariances, strain, X_ref_mm: np.ndarray, blocks: list[tuple[np.ndarray, np.ndarray]],
+                 rotation=None) -> np.ndarray:
+    """Standard uncertainty of E11, E22, E12 at every node of a window strain, (rows, cols, 3).
+
+    Parameters
+    ----------
+    pairs : PairCovariances of the reference's grid
+    strain : measurement.strain.SurfaceStrain with ``method == "window"`` (its frames and window are used)
+    X_ref_mm : ndarray (N, 3)
+        Reference positions of the grid's points (the frame the strain was computed in).
+    blocks : list of (M (N, 3, 2), scale (N,))
+        Per image: how a pixel error of each point moves its displacement (mm/px), and the image's noise
+        variance relative to the reference's in the pairs (1 for the reference itself).
+    rotation : ndarray (3, 3), optional
+        The rotation that took the measured positions (the blocks' frame, the left camera's) to the frame the
+        strain was computed in (e.g. after a rigid alignment); ``X_ref_mm`` is in the strain's frame.
+
+    Raises
+    ------
+    ValueError
+        A strain of the triangle method (no windowed fit).
+    """
+    if strain.method != "window":
+        raise ValueError("strain sigma needs the strain-window method (window=k); the triangle method has no "
+                         "windowed fit")
+    M = np.stack([b[0] for b in blocks])
+    if rotation is not None:
+        M = np.einsum("ij,knjb->knib", np.asarray(rotation, dtype=np.float64), M)
+    M = np.ascontiguousarray(M, dtype=np.float64)
+    scale = np.ascontiguousarray(np.stack([np.where(np.isfinite(b[1]), b[1], 0.0) for b in blocks]), dtype=np.float64)
+    node_ok = np.isfinite(strain.E11) & (pairs.index >= 0)
+    out = np.full(pairs.index.shape + (3,), np.nan)
+    _strain_variance(pairs.index, np.ascontiguousarray(X_ref_mm, dtype=np.float64),
+                     np.ascontiguousarray(np.nan_to_num(strain.e1)), np.ascontiguousarray(np.nan_to_num(strain.e2)),
+                     node_ok, strain.window // 2, strain.fit == "quadratic", pairs.C, pairs.reach, M, scale, out)
+    return out
+
+
+def _ratio(target: np.ndarray, reference: np.ndarray) -> np.ndarray:
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return 0.5 * (target[:, 0, 0] / reference[:, 0, 0] + target[:, 1, 1] / reference[:, 1, 1])
+
+
+def state_strain_sigma(shape, state, strain, G_ref: np.ndarray, G_def: np.ndarray, pairs: PairCovariances, *,
+                       X_ref_mm: np.ndarray | None = None, rotation=None) -> np.ndarray:
+    """:func:`strain_sigma` of a stereo state (:mod:`measurement.stereo_dic`): the four images' blocks.
+
+    ``G_ref``, ``G_def``: (N, 3, 4) triangulation sensitivities at the reference and deformed points
+    (:func:`measurement.uncertainty.stereo.triangulation_sensitivity`). ``X_ref_mm``/``rotation``: the reference
+    positions in the strain's frame and the rotation to it, when the strain was computed after an alignment.
+    """
+    GL, GR, GRref = G_def[:, :, :2], G_def[:, :, 2:], G_ref[:, :, 2:]
+    ref = shape.match_uncertainty.cov_reference_px2
+    blocks = [(GL + GR - GRref, np.ones(ref.shape[0])),
+              (-GRref, _ratio(shape.match_uncertainty.cov_target_px2, ref)),
+              (GL, _ratio(state.left_uncertainty.cov_target_px2, ref)),
+              (GR, _ratio(state.right_uncertainty.cov_target_px2, ref))]
+    blocks = [(np.nan_to_num(m), s) for m, s in blocks]
+    return strain_sigma(pairs, strain, shape.X_mm if X_ref_mm is None else X_ref_mm, blocks, rotation)
