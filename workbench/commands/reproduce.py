@@ -109,6 +109,8 @@ def add_parser(sub) -> None:
     un.add_argument("--planar-only", action="store_true", help="only the planar (2-D) classes: no rendering")
     un.add_argument("--draws", type=positive_int_arg, default=None,
                     help="noise draws per class (default 12 planar / 6 stereo; 6 / 3 with --quick)")
+    un.add_argument("--real-data", type=Path, default=None,
+                    help="folder of real static pairs from scripts/fetch_twin_data.sh (default data/twin when present)")
     un.add_argument("--store", type=Path, default=None,
                     help="dataset store (default $WORKBENCH_STORE or ~/.cache/scheimpflug-dic-workbench/datasets)")
     un.add_argument("--out", type=Path, required=True)
@@ -170,8 +172,14 @@ def reproduce_uncertainty_command(args) -> int:
     output_folder(args.out)
     if args.draws is not None and args.draws < 2:
         raise ValueError(f"--draws {args.draws}: at least 2 noise draws are needed")
+    real = args.real_data
+    if real is None:
+        default = Path(__file__).resolve().parents[2] / "data" / "twin"
+        real = default if default.is_dir() else None
+    elif not real.is_dir():
+        raise ValueError(f"--real-data {real}: no such folder (run scripts/fetch_twin_data.sh)")
     result = run(args.out, quick=args.quick, draws_planar=args.draws, draws_stereo=args.draws, store=args.store,
-                 stereo=not args.planar_only)
+                 stereo=not args.planar_only, real_data=real)
     for r in result["classes"]:
         v = r["verdict"]
         figures = ", ".join(f"{n} std(z) {f['std_z']:.3f} cov95 {f['coverage_95']:.3f}"
