@@ -69,7 +69,12 @@ def draws():
                                 noise={"left": model, "right": model})
         state = measure_state(*cams, shape, images["left_ref"], images["left_def"], images["right_def"], SETTINGS)
         out.append((shape, state))
+        _IMAGES.append({k: images[k] for k in ("left_ref", "right_ref")})
     return out
+
+
+#: The reference images of every draw (for the static-repeat test), filled by the fixture.
+_IMAGES: list = []
 
 
 def _z(values, sigma):
@@ -154,3 +159,28 @@ def test_sigma_of_window_strain_is_honest(draws, window, fit):
         sig.append(s[grid.active])
     _check(_z(values, sig), f"E11, E22, E12 (window {window}, {fit})")
 
+
+
+def test_static_repeat_prediction_from_the_shape_alone(draws):
+    """The noise floor predicted from the reference pair alone (no static pair measured yet) against static
+    repeats: the reference pair of draw r measured against the reference pair of draw r + 1 (the same scene, new
+    noise). std(z) within [0.9, 1.1] for U, V, W."""
+    from measurement.uncertainty.stereo import static_repeat_covariance_mm2
+
+    cams = (RIG.left, RIG.right, RIG.R_right_from_left, RIG.T_right_from_left_mm)
+    values, sig = [], []
+    for r in range(len(draws) - 1):
+        shape = draws[r][0]
+        static = measure_state(*cams, shape, _IMAGES[r]["left_ref"], _IMAGES[r + 1]["left_ref"],
+                               _IMAGES[r + 1]["right_ref"], SETTINGS)
+        G = triangulation_sensitivity(*cams, shape.X_mm)
+        cov = static_repeat_covariance_mm2(G, shape.match_uncertainty.cov_reference_px2,
+                                           shape.match_uncertainty.cov_target_px2)
+        values.append(np.where(static.valid[:, None], static.U_mm, np.nan))
+        sig.append(sigmas(cov))
+    U, s = np.array(values), np.array(sig)
+    keep = np.all(np.isfinite(U), axis=(0, 2)) & np.all(np.isfinite(s), axis=(0, 2))
+    z = U[:, keep] / s[:, keep]
+    spread = z.std(axis=(0, 1))
+    print(f"static repeat predicted from the shape: std(z) {spread.round(3)} over {z.shape[1]} points x {z.shape[0]}")
+    assert np.all((spread > 0.9) & (spread < 1.1)), spread

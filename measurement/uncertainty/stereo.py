@@ -97,3 +97,17 @@ def sigmas(cov: np.ndarray) -> np.ndarray:
     """Square roots of the diagonals of a stack of covariances, (N, k, k) -> (N, k)."""
     return np.sqrt(np.clip(np.einsum("kii->ki", cov), 0.0, None)) * np.where(
         np.all(np.isfinite(np.einsum("kii->ki", cov)), axis=1), 1.0, np.nan)[:, None]
+
+
+def static_repeat_covariance_mm2(G_ref: np.ndarray, cov_left_reference_px2: np.ndarray,
+                                 cov_right_reference_px2: np.ndarray) -> np.ndarray:
+    """Covariance of U for a *static repeat* of the reference pair (the noise floor), from the shape alone, mm^2.
+
+    A static repeat samples both new images at the reference's own sub-pixel phases: the left one at whole pixels
+    (its noise counts as the left reference's, ``C_L``), the right one where the stereo match sampled the right
+    reference (``C_R``); the deformed points are the reference points, so ``G_def = G_ref`` and (module notes)
+    ``Cov U = 2 G_L C_L G_L^T + 2 G_R C_R G_R^T``. This is what a digital twin predicts for a rig before any
+    static pair is recorded.
+    """
+    GL, GR = G_ref[:, :, :2], G_ref[:, :, 2:]
+    return 2.0 * _sandwich(GL, cov_left_reference_px2) + 2.0 * _sandwich(GR, cov_right_reference_px2)
