@@ -440,7 +440,7 @@ def reference_shape(left: ScheimpflugCamera, right: ScheimpflugCamera, R_right_f
     shape = StereoShape(match.x, match.y, match, tri.X_left_mm, tri.reprojection_error_px, valid, grid, prepared,
                         features, quality, auto_roi, None if auto_roi is None else measure_grid, sigma, report)
     if uncertainty:
-        _shape_uncertainty(shape, left, right, R_right_from_left, T_right_from_left_mm, settings, noise)
+        shape_uncertainty(shape, left, right, R_right_from_left, T_right_from_left_mm, settings, noise)
     return shape
 
 
@@ -454,8 +454,10 @@ def _check_noise(noise) -> dict | None:
     return noise
 
 
-def _shape_uncertainty(shape: StereoShape, left, right, R, T, settings: DICSettings, noise) -> None:
-    """Fill the shape's uncertainty fields (see :class:`StereoShape`)."""
+def shape_uncertainty(shape: StereoShape, left, right, R, T, settings: DICSettings, noise: dict | None = None) -> None:
+    """Fill (or refill, e.g. once a static pair has given the cameras' noise) the shape's uncertainty fields (see
+    :class:`StereoShape`) with ``noise = {"left": NoiseModel, "right": NoiseModel}``, or with the noise fitted to
+    the stereo match's residuals (None). Every state measured afterwards uses them."""
     noise = _check_noise(noise)
     values = shape.reference.values
     half = settings.subset_size // 2

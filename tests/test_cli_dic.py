@@ -156,3 +156,27 @@ def test_a_full_disk_leaves_no_partial_csv(pair, tmp_path, capsys, monkeypatch):
     assert str(out) in line and "No space left on device" in line
     assert out.read_text() == "earlier results\n"
     assert sorted(p.name for p in tmp_path.iterdir()) == ["points.csv"]
+
+
+def test_dic_static_pair_gives_the_noise(tmp_path, capsys):
+    """`workbench dic --static`: the noise measured on the static pair is within 5 % of the 8-bit images' true
+    noise (2 grey read + quantisation); a "static" image shifted by 0.8 px is refused, naming --static."""
+    from scenes.noise import SensorNoise
+
+    reference, deformed = fourier_shifted_pair((200, 240), 4.0, SHIFT_PX, seed=5, mean_grey=128.0, std_grey=30.0)
+    noise = SensorNoise(read_noise_grey=2.0, bit_depth=8)
+    files = {}
+    for k, (name, image) in enumerate((("ref", reference), ("def", deformed), ("static", reference))):
+        files[name] = tmp_path / f"{name}.png"
+        assert cv2.imwrite(str(files[name]), noise.apply(image, seed=k).astype(np.uint8))
+    out = tmp_path / "points.csv"
+    assert main(["dic", str(files["ref"]), str(files["def"]), "--roi", ROI, "--static", str(files["static"]),
+                 "--out", str(out)]) == 0
+    printed = capsys.readouterr().out
+    grey = float(printed.split("noise from the static pair: ")[1].split(" grey")[0])
+    assert abs(grey / np.hypot(2.0, 12 ** -0.5) - 1.0) < 0.05, printed
+    _, moved = fourier_shifted_pair((200, 240), 4.0, (0.8, 0.0), seed=5, mean_grey=128.0, std_grey=30.0)
+    assert cv2.imwrite(str(tmp_path / "moved.png"), noise.apply(moved, seed=9).astype(np.uint8))
+    assert main(["dic", str(files["ref"]), str(files["def"]), "--roi", ROI, "--static", str(tmp_path / "moved.png"),
+                 "--out", str(tmp_path / "x.csv")]) == 2
+    assert "--static" in capsys.readouterr().err and not (tmp_path / "x.csv").exists()

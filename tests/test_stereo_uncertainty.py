@@ -69,7 +69,7 @@ def draws():
                                 noise={"left": model, "right": model})
         state = measure_state(*cams, shape, images["left_ref"], images["left_def"], images["right_def"], SETTINGS)
         out.append((shape, state))
-        _IMAGES.append({k: images[k] for k in ("left_ref", "right_ref")})
+        _IMAGES.append(images)
     return out
 
 
@@ -184,3 +184,44 @@ def test_static_repeat_prediction_from_the_shape_alone(draws):
     spread = z.std(axis=(0, 1))
     print(f"static repeat predicted from the shape: std(z) {spread.round(3)} over {z.shape[1]} points x {z.shape[0]}")
     assert np.all((spread > 0.9) & (spread < 1.1)), spread
+
+
+def test_stereo_command_measures_the_noise_on_a_static_pair(draws, tmp_path, capsys):
+    """`workbench stereo --static-left/--static-right`: the cameras' noise from a static pair (another draw of the
+    reference scene) within 10 % of the rendered noise (1 grey read + 8-bit quantisation), the sigma columns
+    written, and a "static" pair that moved by a pixel refused with a message naming it."""
+    import csv
+
+    from labio.atomic import atomic_write_image
+    from measurement.calibration.io import CalibratedRig, save_rig
+    from workbench.cli import main
+
+    rig = CalibratedRig("rmm", RIG.left, RIG.right, RIG.R_right_from_left, RIG.T_right_from_left_mm)
+    save_rig(rig, tmp_path / "rig.json")
+    for name, image in {**_IMAGES[0], "static_left": _IMAGES[1]["left_ref"],
+                        "static_right": _IMAGES[1]["right_ref"]}.items():
+        atomic_write_image(tmp_path / f"{name}.png", image)
+    base = ["stereo", "--calib", str(tmp_path / "rig.json"), "--left-ref", str(tmp_path / "left_ref.png"),
+            "--right-ref", str(tmp_path / "right_ref.png"), "--left", str(tmp_path / "left_def.png"),
+            "--right", str(tmp_path / "right_def.png"), "--subset", "33", "--step", "10", "--roi",
+            ",".join(map(str, _roi()))]
+    assert main(base + ["--static-left", str(tmp_path / "static_left.png"), "--static-right",
+                        str(tmp_path / "static_right.png"), "--out", str(tmp_path / "out")]) == 0
+    printed = capsys.readouterr().out
+    line = next(l for l in printed.splitlines() if l.startswith("uncertainty: camera noise from the static pair"))
+    left_grey = float(line.split("left ")[1].split(" grey")[0])
+    right_grey = float(line.split("right ")[1].split(" grey")[0])
+    truth = float(np.hypot(READ_GREY, 12 ** -0.5))
+    assert abs(left_grey / truth - 1) < 0.1 and abs(right_grey / truth - 1) < 0.1, line
+    with open(tmp_path / "out" / "state_001.csv", newline="") as handle:
+        rows = list(csv.DictReader(handle))
+    sigma_w = np.array([float(r["sigma_W_um"]) for r in rows if r["status_name"] == "converged"])
+    assert sigma_w.size > 100 and np.all(np.isfinite(sigma_w)) and np.all(sigma_w > 0)
+    # a "static" right image that is in fact another camera position: refused, naming the pair
+    moved = np.roll(_IMAGES[1]["right_ref"], 1, axis=1)
+    atomic_write_image(tmp_path / "moved_right.png", moved)
+    assert main(base + ["--static-left", str(tmp_path / "static_left.png"), "--static-right",
+                        str(tmp_path / "moved_right.png"), "--out", str(tmp_path / "out2")]) == 2
+    err = capsys.readouterr().err
+    assert "the right static image moved by" in err and "not a static pair" in err, err
+    assert not (tmp_path / "out2").exists()

@@ -37,6 +37,9 @@ def add_parser(sub) -> None:
                      help="automatic ROI: points whose reference subset lacks texture are flagged low_texture and not "
                           "correlated; converged points that disagree with their neighbours are flagged inconsistent")
     add_auto_roi_options(dic)
+    dic.add_argument("--static", type=Path, default=None,
+                     help="a second exposure of the unmoved reference scene: the camera's noise for the sigma columns "
+                          "is measured from it (default: fitted to the match's residuals)")
     dic.add_argument("--out", type=Path, required=True, help="CSV of the points (x,y,u,v,zncc,iterations,status,...)")
 
 
@@ -50,6 +53,11 @@ def dic_command(args) -> int:
     if reference.shape != deformed.shape:
         raise ValueError(f"{args.reference} is {reference.shape[1]} x {reference.shape[0]} px but {args.deformed} is "
                          f"{deformed.shape[1]} x {deformed.shape[0]} px: the images must have the same size")
+    static = None
+    if args.static is not None:
+        static = read_image_for(args.static, "--static")
+        if static.shape != reference.shape:
+            raise ValueError(f"--static {args.static} is {size_text(static)} but the reference is {size_text(reference)}")
     output_file(args.out)
     mask = None
     if args.mask is not None:
@@ -86,11 +94,17 @@ def dic_command(args) -> int:
         if str(err).startswith("seed point"):
             raise ValueError(f"--seed-point: {err}") from None
         raise
+    noise = None
+    if static is not None:
+        from measurement.uncertainty.noise import static_pair_noise_2d
+
+        repeat = correlate(reference, static, settings, grid=grid, seed_points_xy=args.seed_point)
+        noise = static_pair_noise_2d(reference, static, repeat, what=f"--static {args.static}")
     if result.converged.sum() >= 20:
         from measurement.uncertainty.match import dic_uncertainty
 
-        # no static pair here: the noise is fitted to the match's own residuals (stated in the output)
-        result.uncertainty = dic_uncertainty(reference, result)
+        # without a static pair the noise is fitted to the match's own residuals (stated in the output)
+        result.uncertainty = dic_uncertainty(reference, result, noise)
     result.to_csv(args.out)
     ok = result.converged
     counts = ", ".join(f"{name.lower()} {n}" for name, n in result.status_counts().items())

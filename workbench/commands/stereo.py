@@ -38,6 +38,11 @@ def add_parser(sub) -> None:
                     help="automatic ROI: points whose left-reference subset lacks texture are flagged low_texture "
                          "and not matched; matches that disagree with their neighbours are flagged inconsistent")
     add_auto_roi_options(st)
+    st.add_argument("--static-left", type=Path, default=None,
+                    help="a second exposure of the unmoved reference scene, left camera (with --static-right): each "
+                         "camera's noise for the uncertainty columns is measured from it; without, the noise is "
+                         "fitted to the stereo match's residuals")
+    st.add_argument("--static-right", type=Path, default=None, help="the static pair's right image")
     st.add_argument("--overwrite", action="store_true",
                     help="replace earlier results in --out (deletes exactly the files its manifest.json lists)")
     st.add_argument("--out", type=Path, required=True,
@@ -92,6 +97,15 @@ def stereo_command(args) -> int:
     for fl, fr in zip(left_files, right_files):
         _check_against_calibration(read_image_for(fl, "left image"), rig.left, f"left image {fl}")
         _check_against_calibration(read_image_for(fr, "right image"), rig.right, f"right image {fr}")
+    if (args.static_left is None) != (args.static_right is None):
+        raise ValueError("--static-left and --static-right go together (a static pair of both cameras)")
+    static = None
+    if args.static_left is not None:
+        input_file(args.static_left, "--static-left")
+        input_file(args.static_right, "--static-right")
+        static = (read_image_for(args.static_left, "--static-left"), read_image_for(args.static_right, "--static-right"))
+        _check_against_calibration(static[0], rig.left, f"--static-left {args.static_left}")
+        _check_against_calibration(static[1], rig.right, f"--static-right {args.static_right}")
     mask = None
     if args.mask is not None:
         mask_image = read_image_for(args.mask, "--mask")
@@ -114,15 +128,33 @@ def stereo_command(args) -> int:
                                 right_ref, settings, roi=args.roi, mask=mask, auto_roi=auto_roi, **thresholds)
     except StereoQualityError as err:
         raise ValueError(f"{err}{hint}") from None
+    if static is not None:
+        from measurement.stereo_dic import shape_uncertainty
+        from measurement.uncertainty.noise import static_pair_noise_stereo
+
+        what = f"the static pair ({args.static_left}, {args.static_right})"
+        try:
+            repeat = measure_state(rig.left, rig.right, rig.R_right_from_left, rig.T_right_from_left_mm, shape,
+                                   left_ref, *static, settings, name=what, **thresholds)
+        except StereoMatchError as err:
+            raise ValueError(f"{what}: {err}") from None
+        noise = static_pair_noise_stereo(shape, repeat, left_ref, right_ref, *static)
+        shape_uncertainty(shape, rig.left, rig.right, rig.R_right_from_left, rig.T_right_from_left_mm, settings, noise)
     prepare_folder(args.out, "stereo", planned, overwrite=args.overwrite)
     written = [write_state_csv(args.out / "reference.csv", shape).name,
                write_state_vtk(args.out / "reference.vtk", shape).name]
     q = shape.quality
     print(f"reference: {q.measured}/{shape.x.size} points triangulated, median residual {q.median_residual_px:.4f} px, "
           f"95th percentile {q.p95_residual_px:.4f} px")
+    if shape.noise is not None:
+        print(f"uncertainty: camera noise from the {shape.noise['left'].source} (left {shape.noise['left'].sigma_grey:.3g}"
+              f" grey, right {shape.noise['right'].sigma_grey:.3g} grey)")
     if shape.auto_roi_report is not None:
         print(f"reference {shape.auto_roi_report.summary()}")
-    rows = [{"state": "reference", "left": str(args.left_ref), "right": str(args.right_ref), "quality": q}]
+    from measurement.stereo_io import sigma_summary
+
+    rows = [{"state": "reference", "left": str(args.left_ref), "right": str(args.right_ref), "quality": q,
+             **sigma_summary(shape)}]
     # What each result file measured (by the images' grey levels): `workbench score` identifies its state by them.
     images = [_image_record(0, "reference.csv", args.left_ref, args.right_ref, left_ref, right_ref)]
     from tqdm import tqdm
@@ -148,10 +180,12 @@ def stereo_command(args) -> int:
         images.append(_image_record(k, f"{names[i]}.csv", fl, fr, left_def, right_def))
         q = state.quality
         rows.append({"state": names[i], "left": fl, "right": fr, "quality": q,
-                     "mean_D_mm": float(np.nanmean(state.D_mm[state.valid]))})
+                     "mean_D_mm": float(np.nanmean(state.D_mm[state.valid])), **sigma_summary(shape, state)})
         tqdm.write(f"state {k} ({Path(fl).name}, {Path(fr).name}): {q.measured}/{q.points} points, median residual "
                    f"{q.median_residual_px:.4f} px, 95th percentile {q.p95_residual_px:.4f} px, mean D "
-                   f"{rows[-1]['mean_D_mm']:.4f} mm")
+                   f"{rows[-1]['mean_D_mm']:.4f} mm; median sigma U, V, W {rows[-1]['median_sigma_U_um']:.3g}, "
+                   f"{rows[-1]['median_sigma_V_um']:.3g}, {rows[-1]['median_sigma_W_um']:.3g} µm, "
+                   f"{100 * rows[-1]['sigma_flagged_fraction']:.1f} % flagged")
         if state.auto_roi_report is not None:
             tqdm.write(f"state {k} {state.auto_roi_report.summary()}")
     written.append(write_state_summary(args.out / "summary.csv", rows).name)
@@ -162,7 +196,12 @@ def stereo_command(args) -> int:
                      "step": args.step, "order": args.order, "min_zncc": args.min_zncc, **thresholds,
                      "auto_roi": None if auto_roi is None else vars(auto_roi) | {"noise_sigma_used_grey":
                                                                                   shape.noise_sigma_grey},
-                     "skipped_states": skipped, "images": images})
+                     "skipped_states": skipped, "images": images,
+                     "static_left": None if args.static_left is None else str(args.static_left),
+                     "static_right": None if args.static_right is None else str(args.static_right),
+                     "noise": {side: {"source": m.source, "sigma_grey": m.sigma_grey,
+                                      "read_noise_grey": m.read_noise_grey, "electrons_per_grey": m.electrons_per_grey}
+                               for side, m in (shape.noise or {}).items()}})
     print(f"wrote {args.out} ({len(left_files) - len(skipped)} of {len(left_files)} states; summary.csv)")
     if skipped:
         print(f"workbench stereo: error: {len(skipped)} of {len(left_files)} states could not be measured (states "
