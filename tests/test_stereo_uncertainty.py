@@ -151,7 +151,8 @@ def test_sigma_of_window_strain_is_honest(draws, window, fit):
             return out
 
         strain = surface_strain(on_grid(shape.X_mm), on_grid(state.X_mm), window=window, fit=fit)
-        pairs = pair_covariances(shape.reference, shape.subsets, shape.right_match.grid_index, grid.shape, grid.step)
+        pairs = pair_covariances(shape.reference, shape.subsets, shape.right_match.grid_index, grid.shape, grid.step,
+                                 window=window)
         G_ref = triangulation_sensitivity(*cams, shape.X_mm)
         G_def = triangulation_sensitivity(*cams, state.X_mm)
         s = state_strain_sigma(shape, state, strain, G_ref, G_def, pairs)

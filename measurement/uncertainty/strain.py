@@ -13,7 +13,11 @@ level at pixel ``x`` of its subset (:class:`measurement.uncertainty.match.Refere
 
     C_pq = sum over their common pixels of A_p(x) A_q(x)^T sigma^2(x)          (2 x 2, px^2)
 
-(:func:`pair_covariances`, once per reference). Each image enters a displacement through its own 3 x 2 block of
+(:func:`pair_covariances`, once per reference). Computing it for every pair costs ~10^2 s at the paper's subset and
+step, so it is computed exactly for a sample of points spread over the grid and kept as a correlation per grid
+offset, ``C_pq = D_p rho(q - p) D_q`` with ``D`` each point's own standard deviations (exact) and ``rho`` the
+sample's median correlation at that offset (the texture's statistics do not change across a speckle pattern).
+Each image enters a displacement through its own 3 x 2 block of
 the triangulation sensitivities (:mod:`measurement.uncertainty.stereo`: the left reference image through
 ``G_L + G_R - G_R^ref``, the right reference through ``-G_R^ref``, the deformed images through ``G_L``, ``G_R``);
 the target images' noise is counted in the reference's pixel layout, scaled by each point's target-to-reference
@@ -41,16 +45,30 @@ class PairCovariances:
     ----------
     reach : int
         R: neighbours up to R grid steps away in each direction share pixels.
-    C : ndarray (N, 2R + 1, 2R + 1, 2, 2)
-        ``C[p, R + di, R + dj]`` = covariance of point p's (u, v) error with that of the point (di, dj) grid steps
-        away (NaN where there is none), px^2, for the reference image's noise.
+    rho : ndarray (2R + 1, 2R + 1, 2, 2)
+        ``rho[R + di, R + dj]``: correlation of a point's (u, v) error with that of the point (di, dj) grid steps
+        away (module notes).
+    D : ndarray (N, 2)
+        Each point's standard deviation of u and v from the reference image's noise, px (NaN where none).
     index : ndarray of int64 (rows, cols)
         Point index of every grid node, -1 where none.
+    sampled : int
+        Points the correlations were computed on.
+    overlap_reach : int
+        The farthest offset (grid steps) at which subsets still share pixels; ``reach`` may be less when the
+        covariances were computed for a smaller strain window.
     """
 
     reach: int
-    C: np.ndarray = field(repr=False)
+    rho: np.ndarray = field(repr=False)
+    D: np.ndarray = field(repr=False)
     index: np.ndarray = field(repr=False)
+    sampled: int = 0
+    overlap_reach: int = 0
+
+    def covariance(self, p: int, q: int, di: int, dj: int) -> np.ndarray:
+        """C_pq (2, 2) px^2 for points p and q = p + (di, dj) grid steps."""
+        return self.D[p][:, None] * self.rho[self.reach + di, self.reach + dj] * self.D[q][None, :]
 
 
 @numba.njit(cache=True, inline="always")
@@ -65,10 +83,11 @@ def _monomials(dx, dy, order, out):
 
 
 @numba.njit(cache=True, parallel=True)
-def _pairs(gx, gy, variance, xs, ys, rows_uv, half, order, index, gi, gj, reach, out):
+def _pairs(gx, gy, variance, xs, ys, rows_uv, half, order, index, gi, gj, reach, sample, out):
     nm = 3 if order == 1 else 6
     n_rows, n_cols = index.shape
-    for p in numba.prange(xs.size):
+    for s in numba.prange(sample.size):
+        p = sample[s]
         mp = np.empty(6)
         mq = np.empty(6)
         if not np.isfinite(rows_uv[p, 0, 0]):
@@ -101,14 +120,15 @@ def _pairs(gx, gy, variance, xs, ys, rows_uv, half, order, index, gi, gj, reach,
                         c01 += w * pu * qv
                         c10 += w * pv * qu
                         c11 += w * pv * qv
-                out[p, a, b, 0, 0] = c00
-                out[p, a, b, 0, 1] = c01
-                out[p, a, b, 1, 0] = c10
-                out[p, a, b, 1, 1] = c11
+                out[s, a, b, 0, 0] = c00
+                out[s, a, b, 0, 1] = c01
+                out[s, a, b, 1, 0] = c10
+                out[s, a, b, 1, 1] = c11
 
 
 def pair_covariances(reference: PreparedImage, subsets: ReferenceSubsets, grid_index: np.ndarray,
-                     grid_shape: tuple[int, int], step_px: int) -> PairCovariances:
+                     grid_shape: tuple[int, int], step_px: int, *, window: int | None = None,
+                     sample: int = 64, seed: int = 0) -> PairCovariances:
     """:class:`PairCovariances` of a reference's subsets on their grid (module notes).
 
     Parameters
@@ -117,24 +137,50 @@ def pair_covariances(reference: PreparedImage, subsets: ReferenceSubsets, grid_i
     subsets : ReferenceSubsets of the same points
     grid_index : ndarray (N, 2)
         (row, col) of each point in the grid; grid_shape : (rows, cols); step_px : the grid step.
+    window : int, optional
+        The strain window the covariances are for: offsets beyond ``window - 1`` steps are not needed.
+    sample : int
+        Points the correlations are computed on (drawn with ``seed`` among those with a sigma).
     """
     half = subsets.subset_size // 2
-    reach = min((2 * half) // int(step_px), max(grid_shape) - 1)
+    reach = overlap = min((2 * half) // int(step_px), max(grid_shape) - 1)
+    if window is not None:
+        reach = min(reach, int(window) - 1)
     index = np.full(grid_shape, -1, dtype=np.int64)
     gi = np.asarray(grid_index[:, 0], dtype=np.int64)
     gj = np.asarray(grid_index[:, 1], dtype=np.int64)
     index[gi, gj] = np.arange(gi.size)
     values = reference.values
     variance = subsets.noise_reference.sigma_at(np.where(np.isfinite(values), values, 0.0)) ** 2
-    C = np.full((gi.size, 2 * reach + 1, 2 * reach + 1, 2, 2), np.nan)
     rows = np.ascontiguousarray(np.where(subsets.ok[:, None, None], subsets.uv_rows, np.nan))
+    D = np.sqrt(np.einsum("kii->ki", subsets.cov_uv_reference))
+    candidates = np.flatnonzero(subsets.ok & np.all(np.isfinite(D), axis=1))
+    if candidates.size == 0:
+        raise ValueError("no point has a sigma: the strain's sigma cannot be computed")
+    chosen = np.sort(np.random.default_rng(seed).choice(candidates, min(int(sample), candidates.size), replace=False))
+    C = np.full((chosen.size, 2 * reach + 1, 2 * reach + 1, 2, 2), np.nan)
     _pairs(reference.spline.grad_x, reference.spline.grad_y, variance, subsets.x, subsets.y, rows, half,
-           subsets.order, index, gi, gj, reach, C)
-    return PairCovariances(reach, C, index)
+           subsets.order, index, gi, gj, reach, chosen.astype(np.int64), C)
+    # normalise by both points' own standard deviations; the median over the sample per offset
+    rho = np.full((2 * reach + 1, 2 * reach + 1, 2, 2), np.nan)
+    Dp = D[chosen]
+    for a in range(2 * reach + 1):
+        for b in range(2 * reach + 1):
+            i, j = gi[chosen] + a - reach, gj[chosen] + b - reach
+            inside = (i >= 0) & (j >= 0) & (i < grid_shape[0]) & (j < grid_shape[1])
+            q = np.full(chosen.size, -1)
+            q[inside] = index[i[inside], j[inside]]
+            ok = (q >= 0) & np.all(np.isfinite(C[:, a, b].reshape(-1, 4)), axis=1)
+            if ok.sum() == 0:
+                continue
+            Dq = D[q[ok]]
+            r = C[ok, a, b] / (Dp[ok][:, :, None] * Dq[:, None, :])
+            rho[a, b] = np.median(r, axis=0)
+    return PairCovariances(reach, rho, D, index, int(chosen.size), overlap)
 
 
 @numba.njit(cache=True, parallel=True)
-def _strain_variance(index, X, e1g, e2g, node_ok, r, quadratic, C, reach, M, scale, out):
+def _strain_variance(index, X, e1g, e2g, node_ok, r, quadratic, rho, D, reach, M, scale, out):
     n_rows, n_cols = index.shape
     n_img = M.shape[0]
     nb = 6 if quadratic else 3
@@ -154,7 +200,7 @@ def _strain_variance(index, X, e1g, e2g, node_ok, r, quadratic, C, reach, M, sca
                 if i < 0 or j < 0 or i >= n_rows or j >= n_cols:
                     continue
                 p = index[i, j]
-                if p < 0 or not np.isfinite(X[p, 0]) or not np.isfinite(C[p, reach, reach, 0, 0]):
+                if p < 0 or not np.isfinite(X[p, 0]) or not np.isfinite(D[p, 0]):
                     continue
                 pts[n] = p
                 di_[n] = a
@@ -203,13 +249,17 @@ def _strain_variance(index, X, e1g, e2g, node_ok, r, quadratic, C, reach, M, sca
                     b = dj_[l] - dj_[k]
                     if a < -reach or a > reach or b < -reach or b > reach:
                         continue
-                    cc = C[p, a + reach, b + reach]
-                    if not np.isfinite(cc[0, 0]):
+                    rr = rho[a + reach, b + reach]
+                    if not np.isfinite(rr[0, 0]):
                         continue
+                    q = pts[l]
+                    c00 = D[p, 0] * rr[0, 0] * D[q, 0]
+                    c01 = D[p, 0] * rr[0, 1] * D[q, 1]
+                    c10 = D[p, 1] * rr[1, 0] * D[q, 0]
+                    c11 = D[p, 1] * rr[1, 1] * D[q, 1]
                     for comp in range(3):
-                        var[comp] += (beta[comp, k, 0] * (cc[0, 0] * beta[comp, l, 0] + cc[0, 1] * beta[comp, l, 1])
-                                      + beta[comp, k, 1] * (cc[1, 0] * beta[comp, l, 0]
-                                                            + cc[1, 1] * beta[comp, l, 1]))
+                        var[comp] += (beta[comp, k, 0] * (c00 * beta[comp, l, 0] + c01 * beta[comp, l, 1])
+                                      + beta[comp, k, 1] * (c10 * beta[comp, l, 0] + c11 * beta[comp, l, 1]))
         for comp in range(3):
             out[i0, j0, comp] = np.sqrt(max(var[comp], 0.0))
 
@@ -239,6 +289,10 @@ def strain_sigma(pairs: PairCovariances, strain, X_ref_mm: np.ndarray, blocks: l
     if strain.method != "window":
         raise ValueError("strain sigma needs the strain-window method (window=k); the triangle method has no "
                          "windowed fit")
+    if pairs.reach < min(strain.window - 1, pairs.overlap_reach):
+        raise ValueError(f"the pair covariances reach {pairs.reach} grid steps, but this {strain.window}-point strain "
+                         f"window holds points up to {min(strain.window - 1, pairs.overlap_reach)} steps apart whose "
+                         "subsets overlap: compute them for this window")
     M = np.stack([b[0] for b in blocks])
     if rotation is not None:
         M = np.einsum("ij,knjb->knib", np.asarray(rotation, dtype=np.float64), M)
@@ -248,7 +302,8 @@ def strain_sigma(pairs: PairCovariances, strain, X_ref_mm: np.ndarray, blocks: l
     out = np.full(pairs.index.shape + (3,), np.nan)
     _strain_variance(pairs.index, np.ascontiguousarray(X_ref_mm, dtype=np.float64),
                      np.ascontiguousarray(np.nan_to_num(strain.e1)), np.ascontiguousarray(np.nan_to_num(strain.e2)),
-                     node_ok, strain.window // 2, strain.fit == "quadratic", pairs.C, pairs.reach, M, scale, out)
+                     node_ok, strain.window // 2, strain.fit == "quadratic", np.ascontiguousarray(pairs.rho),
+                     np.ascontiguousarray(pairs.D), pairs.reach, M, scale, out)
     return out
 
 
