@@ -327,7 +327,7 @@ def test_deeply_nested_json_is_refused_naming_the_file(tmp_path):
     ("a: " + "[" * 100_000, r"has 100001 of the characters '\[\{-:\?' \(more than 10000\): too deeply nested"),
     ("a:\n  " + "- " * 60_000 + "1\n", r"has 60001 of the characters"),
     ("a: 1\n" + "#" * (1 << 20), r"calibration file is 1048581 bytes, more than the 1048576"),
-])
+], ids=["deep flow", "deep block", "huge file"])   # the 1 MB text as a test id would reach the subprocess's environment
 def test_yaml_that_would_crash_opencv_is_refused_before_parsing(tmp_path, text, message):
     """OpenCV's YAML parser overflows its stack (SIGSEGV) on ~20 000+ nesting levels: refused before it runs.
 

@@ -20,6 +20,16 @@ range-checked like the rest.
 A calibration fitted with more than the paper's four lens terms (:data:`~measurement.calibration.stepwise.LENSES`)
 says so in the JSON (``"lens": "brown5"`` or ``"full"``; absent means ``brown4``, so files of the four-term fit are
 unchanged) and stores the sigmas of its extra terms beside the others (``<side>.sigma.k3``, ``.s1``...).
+
+A stereo calibration also stores the covariance of its shared parameters (:data:`COVARIANCE_CONVENTION`) as the
+top-level key ``"covariance": {"names": [...], "matrix": [[...]], "convention": "..."}``, which
+:mod:`measurement.uncertainty.calibration` propagates to points and displacements. It is optional (files written
+before it, and other tools' files, load with ``CalibratedRig.covariance = None``); when present it is validated:
+a finite, square, symmetric matrix (``|C_ij - C_ji| <= 1e-9 sqrt(C_ii C_jj)``) with a non-negative diagonal, one
+row per name, names unique and each one of ``left.<intrinsic>``, ``right.<intrinsic>`` (the names of
+:data:`~measurement.camera.INTRINSIC_NAMES` and :data:`~measurement.camera.EXTRA_NAMES`) or
+:data:`~measurement.calibration.stepwise.STEREO_PARAMETER_NAMES`. A covariance that is not finite (a singular
+normal matrix) or has a negative variance is not written.
 """
 from __future__ import annotations
 
@@ -30,7 +40,14 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from measurement.calibration.stepwise import TILT_MODEL, LENSES, MODELS, CameraCalibration, StereoCalibration
+from measurement.calibration.stepwise import (
+    LENSES,
+    MODELS,
+    STEREO_PARAMETER_NAMES,
+    TILT_MODEL,
+    CameraCalibration,
+    StereoCalibration,
+)
 from measurement.camera import EXTRA_NAMES, INTRINSIC_NAMES, MAX_TILT_DEG, TILT_MODELS, ScheimpflugCamera
 from labio.atomic import atomic_write_text
 from labio.schema import FileFormatError, Node, read_json_file, read_text_file
@@ -38,7 +55,8 @@ from labio.schema import FileFormatError, Node, read_json_file, read_text_file
 __all__ = ["FORMAT", "CONVENTION", "RANGES", "CalibratedRig", "FileFormatError", "calibration_to_dict",
            "save_calibration", "load_calibration", "export_opencv_yaml", "load_opencv_yaml", "rig_to_dict", "save_rig",
            "opencv_distortion_cost_px", "EXTRA_RANGES", "EXTRA_CONVENTION", "CAMERA_FORMAT",
-           "camera_calibration_to_dict", "save_camera_calibration", "load_camera_calibration"]
+           "camera_calibration_to_dict", "save_camera_calibration", "load_camera_calibration",
+           "COVARIANCE_CONVENTION", "COVARIANCE_PARAMETER_NAMES"]
 
 FORMAT = "scheimpflug-stereo-calibration/1"
 CONVENTION = ("Camera frame as OpenCV (x right, y down, z forward), pixel centres at integer coordinates. "
@@ -61,6 +79,17 @@ EXTRA_CONVENTION = ("k3: radial r^6 term, x_d = x_n (1 + k1 r^2 + k2 r^4 + k3 r^
                     "u = fx x_t + skew y_t + cx (K[0][1]); s1-s4: OpenCV's thin prism, x_d += s1 r^2 + s2 r^4, "
                     "y_d += s3 r^2 + s4 r^4. Absent means 0.")
 _UNITS = {"fx": "px", "fy": "px", "cx": "px", "cy": "px", "alpha_deg": "deg", "beta_deg": "deg", "skew": "px"}
+#: What the stored covariance is, written beside it.
+COVARIANCE_CONVENTION = ("s^2 (J^T J)^-1 of the final stereo least-squares problem (s^2 the residual variance), its "
+                         "block of the parameters named in 'names' (the board poses marginalised out); "
+                         "stereo.rvec_* is the rotation vector of R_right_from_left (rad), stereo.T_*_mm is "
+                         "T_right_from_left_mm (mm), alpha_deg and beta_deg are in degrees, fx, fy, cx, cy and skew "
+                         "in px, distortion terms dimensionless.")
+#: Every name a covariance row may carry: each camera's intrinsics, then the stereo pose.
+COVARIANCE_PARAMETER_NAMES = (tuple(f"{side}.{n}" for side in ("left", "right") for n in INTRINSIC_NAMES + EXTRA_NAMES)
+                              + STEREO_PARAMETER_NAMES)
+#: Relative asymmetry a stored covariance may have: |C_ij - C_ji| <= COVARIANCE_SYMMETRY_TOL sqrt(C_ii C_jj).
+COVARIANCE_SYMMETRY_TOL = 1e-9
 #: Image width and height: integers in [1, MAX_IMAGE_PX].
 MAX_IMAGE_PX = 1_000_000
 #: The stereo translation's length must be in (0, MAX_BASELINE_MM) mm.
@@ -69,13 +98,31 @@ MAX_BASELINE_MM = 1e6
 
 @dataclass(frozen=True)
 class CalibratedRig:
-    """A calibrated stereo pair as loaded from a file."""
+    """A calibrated stereo pair as loaded from a file.
+
+    ``covariance`` (k, k) and ``covariance_names`` (k,): the calibration's parameter covariance as stored in the
+    file (:data:`COVARIANCE_CONVENTION`), or None and ``()`` when the file has none.
+    """
 
     model: str
     left: ScheimpflugCamera
     right: ScheimpflugCamera
     R_right_from_left: np.ndarray
     T_right_from_left_mm: np.ndarray
+    covariance: np.ndarray | None = None
+    covariance_names: tuple = ()
+
+
+def _covariance_entry(covariance, names) -> dict:
+    """``{"covariance": {...}}`` for a present covariance, else ``{}``. One that is not finite or has a negative
+    variance (what inverting a singular normal matrix leaves) is not written either: the loader would refuse it,
+    and with it the whole calibration."""
+    if covariance is None:
+        return {}
+    cov = np.asarray(covariance, float)
+    if not (np.all(np.isfinite(cov)) and np.all(np.diag(cov) >= 0)):
+        return {}
+    return {"covariance": {"names": list(names), "matrix": cov.tolist(), "convention": COVARIANCE_CONVENTION}}
 
 
 def _extra_terms(cam: ScheimpflugCamera) -> dict:
@@ -110,7 +157,8 @@ def calibration_to_dict(cal: StereoCalibration, extra: dict | None = None) -> di
                     "T_right_from_left_mm": np.asarray(cal.T_right_from_left_mm).tolist(),
                     "sigma_rvec": cal.sigma_stereo["rvec"], "sigma_T_mm": cal.sigma_stereo["T_mm"]},
          "reprojection_rms_px": dict(cal.rms_px),
-         "steps": [{"step": s[0], "free": list(s[1]), "rms_px": s[2]} for s in cal.steps]}
+         "steps": [{"step": s[0], "free": list(s[1]), "rms_px": s[2]} for s in cal.steps],
+         **_covariance_entry(getattr(cal, "covariance", None), getattr(cal, "covariance_names", ()))}
     _with_extra_convention(d, (cal.left.camera, cal.right.camera))
     if extra:
         d.update(extra)
@@ -118,7 +166,8 @@ def calibration_to_dict(cal: StereoCalibration, extra: dict | None = None) -> di
 
 
 def rig_to_dict(rig: CalibratedRig, extra: dict | None = None) -> dict:
-    """A loaded rig (no uncertainties or calibration history) in the calibration JSON format."""
+    """A loaded rig in the calibration JSON format: no sigmas or calibration history, the parameter covariance
+    when the rig has one."""
     d = {"format": FORMAT, "convention": CONVENTION, "model": rig.model,
          "image_size_px": [rig.left.width, rig.left.height],
          **{side: {"intrinsics": cam.intrinsics(), **_extra_terms(cam), "tilt_model": cam.tilt_model,
@@ -126,7 +175,8 @@ def rig_to_dict(rig: CalibratedRig, extra: dict | None = None) -> dict:
             for side, cam in (("left", rig.left), ("right", rig.right))},
          "stereo": {"R_right_from_left": np.asarray(rig.R_right_from_left).tolist(),
                     "rvec_right_from_left": cv2.Rodrigues(np.asarray(rig.R_right_from_left))[0].ravel().tolist(),
-                    "T_right_from_left_mm": np.asarray(rig.T_right_from_left_mm).ravel().tolist()}}
+                    "T_right_from_left_mm": np.asarray(rig.T_right_from_left_mm).ravel().tolist()},
+         **_covariance_entry(rig.covariance, rig.covariance_names)}
     _with_extra_convention(d, (rig.left, rig.right))
     if extra:
         d.update(extra)
@@ -235,6 +285,46 @@ def _translation(node: Node, shape=(3,)) -> np.ndarray:
     return T
 
 
+#: Most rows a stored covariance may have (every name of COVARIANCE_PARAMETER_NAMES once).
+_MAX_COVARIANCE_ROWS = len(COVARIANCE_PARAMETER_NAMES)
+
+
+def _covariance_from_json(node: Node) -> tuple[np.ndarray, tuple[str, ...]]:
+    """The validated ``(matrix (k, k), names (k,))`` of a ``covariance`` entry (module docstring)."""
+    node.mapping()
+    node.only_keys(("names", "matrix", "convention"))
+    if node.get("convention") is not None:
+        node["convention"].string(nonempty=False)
+    names_node = node["names"]
+    names = tuple(n.string() for n in names_node.sequence(1, _MAX_COVARIANCE_ROWS))
+    for i, name in enumerate(names):
+        if name not in COVARIANCE_PARAMETER_NAMES:
+            raise names_node.error(f"unknown parameter {name!r}; a name is left.<intrinsic>, right.<intrinsic> "
+                                   f"({', '.join(INTRINSIC_NAMES + EXTRA_NAMES)}) or one of "
+                                   f"{', '.join(STEREO_PARAMETER_NAMES)}", key=f"{names_node.key}[{i}]")
+        if name in names[:i]:
+            raise names_node.error(f"parameter {name!r} is listed twice", key=f"{names_node.key}[{i}]")
+    k = len(names)
+    matrix_node = node["matrix"]
+    rows = matrix_node.sequence()
+    if len(rows) != k:
+        raise matrix_node.error(f"has {len(rows)} rows but {names_node.key} lists {k} names (one row and column "
+                                f"per name)")
+    cov = matrix_node.array((k, k))             # square, finite numbers (names the row and column otherwise)
+    d = np.diag(cov)
+    if np.any(d < 0):
+        i = int(np.flatnonzero(d < 0)[0])
+        raise matrix_node.error(f"a variance must not be negative, got {d[i]:.6g} for {names[i]!r}",
+                                key=f"{matrix_node.key}[{i}][{i}]")
+    limit = COVARIANCE_SYMMETRY_TOL * np.sqrt(np.outer(d, d))
+    bad = np.abs(cov - cov.T) > limit
+    if bad.any():
+        i, j = (int(a) for a in np.argwhere(bad)[0])
+        raise matrix_node.error(f"is not symmetric: [{i}][{j}] = {cov[i, j]:.17g} but [{j}][{i}] = {cov[j, i]:.17g} "
+                                f"(allowed: {COVARIANCE_SYMMETRY_TOL:g} sqrt(C_ii C_jj))")
+    return cov, names
+
+
 def _rig_from_json(doc: Node) -> CalibratedRig:
     doc.mapping()
     _check_format(doc["format"])
@@ -255,7 +345,10 @@ def _rig_from_json(doc: Node) -> CalibratedRig:
         rv = rvec.array((3,), bound=10.0)
         if not np.max(np.abs(cv2.Rodrigues(rv)[0] - R)) <= 1e-6:
             raise rvec.error("disagrees with R_right_from_left (edit both, or remove the rotation vector)")
-    return CalibratedRig(model, left, right, R, T)
+    cov, cov_names = None, ()
+    if doc.get("covariance") is not None:             # optional: calibrations of this instrument write it
+        cov, cov_names = _covariance_from_json(doc["covariance"])
+    return CalibratedRig(model, left, right, R, T, cov, cov_names)
 
 
 def load_calibration(path: str | Path) -> CalibratedRig:
@@ -265,7 +358,8 @@ def load_calibration(path: str | Path) -> CalibratedRig:
     ------
     FileFormatError (a ValueError)
         Naming the file and the key: missing/empty/non-UTF-8/non-JSON file, unknown format, a missing key, a
-        wrong type, a non-finite value or one outside :data:`RANGES`, R not a rotation, T zero.
+        wrong type, a non-finite value or one outside :data:`RANGES`, R not a rotation, T zero, a malformed
+        ``covariance`` (module docstring).
     """
     path = Path(path)
     if path.suffix.lower() in OPENCV_SUFFIXES:

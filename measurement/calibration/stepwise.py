@@ -28,7 +28,9 @@ same cost and reach the same minimum (``tests/test_calibration.py`` checks it); 
 scipy's sparse alternative (``method="trf"`` with LSMR subproblems) stopped short of the minimum on the
 near-degenerate tilt/principal-point directions unless its inner tolerances were tuned, hence a direct solver.
 Parameter uncertainties are ``sqrt(diag(s^2 (J^T J)^-1))`` with ``s^2`` the residual variance, at the final
-solution, from the full (dense, n_shared + 6 V square) normal matrix.
+solution, from the full (dense, n_shared + 6 V square) normal matrix; a stereo calibration also keeps the covariance
+of the shared parameters (that matrix's inverse, leading block: the board poses marginalised out), which
+:mod:`measurement.uncertainty.calibration` propagates to triangulated points and displacements.
 
 Models: ``rmm`` (the paper), ``opencv-tilt`` (OpenCV's tau_x, tau_y order of rotations), ``pinhole``
 (conventional: no tilt, alpha = beta = 0 fixed).
@@ -135,9 +137,28 @@ class CameraCalibration:
     lens: str = "brown4"
 
 
+#: Names of the stereo pose's six parameters in :attr:`StereoCalibration.covariance_names`: the rotation vector
+#: of ``R_right_from_left`` (rad) and ``T_right_from_left_mm`` (mm).
+STEREO_PARAMETER_NAMES = ("stereo.rvec_x", "stereo.rvec_y", "stereo.rvec_z",
+                          "stereo.T_x_mm", "stereo.T_y_mm", "stereo.T_z_mm")
+
+
 @dataclass
 class StereoCalibration:
-    """Result of the whole procedure for a stereo pair; ``X_right = R_right_from_left X_left + T``."""
+    """Result of the whole procedure for a stereo pair; ``X_right = R_right_from_left X_left + T``.
+
+    Attributes
+    ----------
+    sigma_stereo : ``{"rvec": [3] rad, "T_mm": [3] mm}`` standard uncertainties of the stereo pose
+    covariance : (k, k) or None
+        Covariance of the k shared parameters (both cameras' free intrinsics, then the stereo pose):
+        ``s^2 (J^T J)^-1`` of the final stereo least-squares problem, its leading k x k block, i.e. with the board
+        poses marginalised out. Units are those of the parameters: px for fx, fy, cx, cy (and skew), deg for
+        alpha_deg, beta_deg, 1 for the distortion terms, rad for the rotation vector of ``R_right_from_left``,
+        mm for T. Its diagonal is ``sigma**2`` (left, right) and ``sigma_stereo**2``.
+    covariance_names : (k,) names of its rows, in order: ``"left.fx"`` ... ``"right.p2"`` (the model's free
+        intrinsics, :func:`free_intrinsics`), then :data:`STEREO_PARAMETER_NAMES`.
+    """
 
     model: str
     left: CameraCalibration
@@ -149,6 +170,8 @@ class StereoCalibration:
     per_view_rms_px: dict
     steps: list = field(default_factory=list)
     lens: str = "brown4"
+    covariance: np.ndarray | None = None
+    covariance_names: tuple = ()
 
 
 # ------------------------------------------------------------------------------------------------------------
@@ -164,17 +187,34 @@ def _with(camera: ScheimpflugCamera, names, values) -> ScheimpflugCamera:
     return replace(camera, **{n: float(v) for n, v in zip(names, values)})
 
 
-def _uncertainty(normal: np.ndarray, residuals: np.ndarray, n_residuals: int | None = None) -> np.ndarray:
-    """Standard uncertainties ``sqrt(diag(s^2 (J^T J)^-1))`` from the normal matrix ``J^T J`` (n, n) -> (n,).
+def _covariance(normal: np.ndarray, residuals: np.ndarray, n_residuals: int | None = None) -> np.ndarray:
+    """Parameter covariance ``s^2 (J^T J)^-1`` from the normal matrix ``J^T J`` (n, n) -> (n, n).
 
-    ``n_residuals``: how many of ``residuals`` are observations (missing points' zeros are not); default all."""
+    ``s^2 = |r|^2 / (m - n)`` is the residual variance, ``m`` the number of observations: ``n_residuals`` (missing
+    points' zeros are not observations; default all of ``residuals``). NaN everywhere when ``J^T J`` is singular.
+    The leading block of a parameter subset is that subset's covariance with the rest marginalised."""
     n = len(normal)
     dof = max(1, (len(residuals) if n_residuals is None else n_residuals) - n)
     s2 = float(residuals @ residuals) / dof
+    d = np.sqrt(np.diag(normal))
+    if not np.all(d > 0):                       # a parameter without effect: singular
+        return np.full((n, n), np.nan)
+    # Inverted with unit diagonal (Jacobi scaling): px-sized focal lengths beside rad-sized rotations make the raw
+    # matrix's condition ~1e15, the scaled one's ~1e11. On the paper's rig the propagated G C G^T of the strongly
+    # correlated tilt and principal point (|corr| ~ 0.9999) is then within 4e-7 of a 40-digit inverse (2e-6 raw).
     try:
-        cov = s2 * np.linalg.inv(normal)
+        return s2 * (np.linalg.inv(normal / np.outer(d, d)) / np.outer(d, d))
     except np.linalg.LinAlgError:
-        return np.full(n, np.nan)
+        return np.full((n, n), np.nan)
+
+
+def _uncertainty(normal: np.ndarray, residuals: np.ndarray, n_residuals: int | None = None) -> np.ndarray:
+    """Standard uncertainties ``sqrt(diag(s^2 (J^T J)^-1))``, (n,): the diagonal of :func:`_covariance`."""
+    return _sigmas(_covariance(normal, residuals, n_residuals))
+
+
+def _sigmas(cov: np.ndarray) -> np.ndarray:
+    """(n, n) covariance -> (n,) standard uncertainties (a rounding-negative diagonal gives 0)."""
     return np.sqrt(np.clip(np.diag(cov), 0, None))
 
 
@@ -479,7 +519,13 @@ def calibrate_stereo(points_left: np.ndarray, points_right: np.ndarray, board_mm
     k = len(names[0]) + len(names[1]) + 6
     jac = block_fd_jacobian(fn, x, k, _stereo_rows(V, N))
     r = jac.residual
-    sig = _uncertainty(jac.normal_matrix(), r, n_residuals=2 * int(found_all.sum()))
+    # One inverse of the full normal matrix: its leading k x k block is the shared parameters' covariance with the
+    # board poses marginalised out, and its diagonal gives every sigma.
+    cov = _covariance(jac.normal_matrix(), r, n_residuals=2 * int(found_all.sum()))
+    sig = _sigmas(cov)
+    cov_shared = 0.5 * (cov[:k, :k] + cov[:k, :k].T)              # exactly symmetric (inv() is only nearly so)
+    cov_names = (tuple(f"left.{n}" for n in names[0]) + tuple(f"right.{n}" for n in names[1])
+                 + STEREO_PARAMETER_NAMES)
     nl = len(names[0])
     sig_l = {n: float(s) for n, s in zip(names[0], sig[:nl])}
     sig_r = {n: float(s) for n, s in zip(names[1], sig[nl:k - 6])}
@@ -501,7 +547,8 @@ def calibrate_stereo(points_left: np.ndarray, points_right: np.ndarray, board_mm
                       f"{out_r.rms_px:.3f} px (wrong corner order, wrong square size or a bad view?)", stacklevel=2)
     return StereoCalibration(model, out_l, out_r, R, np.asarray(T, float), sigma_stereo,
                              {"left": out_l.rms_px, "right": out_r.rms_px},
-                             {"left": out_l.per_view_rms_px, "right": out_r.per_view_rms_px}, steps, lens)
+                             {"left": out_l.per_view_rms_px, "right": out_r.per_view_rms_px}, steps, lens,
+                             covariance=cov_shared, covariance_names=cov_names)
 
 
 # ------------------------------------------------------------------------------------------------------------
