@@ -36,7 +36,9 @@ from measurement.stereo import triangulate
 from measurement.uncertainty.match import (FLAG_NONE, FLAG_RESIDUAL, MatchUncertainty, ReferenceSubsets,
                                            interpolation_noise_gain, match_uncertainty, noise_from_residuals,
                                            reference_subsets)
-from measurement.uncertainty.stereo import shape_covariance_mm2, state_covariances_mm2, triangulation_sensitivity
+from measurement.uncertainty.bias import bias_bound_px
+from measurement.uncertainty.stereo import (shape_bias_bound_mm, shape_covariance_mm2, state_bias_bound_mm,
+                                            state_covariances_mm2, triangulation_sensitivity)
 
 #: Default matching settings for stereo: the paper's 65 px subset (it quotes 64) and step 5, second order.
 STEREO_DIC_SETTINGS = DICSettings(subset_size=65, step=5, order=2, min_zncc=0.8)
@@ -328,6 +330,10 @@ class StereoShape:
     match_uncertainty: MatchUncertainty | None = field(default=None, repr=False)
     cov_X_mm2: np.ndarray | None = field(default=None, repr=False)
     noise: dict | None = None
+    #: Bound on every match's interpolation bias (N, 2) px (the left reference subset's,
+    #: :mod:`measurement.uncertainty.bias`), and what it bounds in X_mm (N, 3) mm; systematic, not in the sigma.
+    bias_bound_px: np.ndarray | None = field(default=None, repr=False)
+    bias_bound_X_mm: np.ndarray | None = field(default=None, repr=False)
 
 
 @dataclass
@@ -369,6 +375,9 @@ class StereoState:
     left_uncertainty: MatchUncertainty | None = field(default=None, repr=False)
     right_uncertainty: MatchUncertainty | None = field(default=None, repr=False)
     flag: np.ndarray | None = field(default=None, repr=False)
+    #: Bounds on the interpolation bias of X_mm and U_mm (N, 3) mm (:mod:`measurement.uncertainty.bias`).
+    bias_bound_X_mm: np.ndarray | None = field(default=None, repr=False)
+    bias_bound_U_mm: np.ndarray | None = field(default=None, repr=False)
 
     @property
     def valid(self) -> np.ndarray:
@@ -475,6 +484,10 @@ def shape_uncertainty(shape: StereoShape, left, right, R, T, settings: DICSettin
     G = triangulation_sensitivity(left, right, R, T, shape.X_mm)
     shape.subsets, shape.match_uncertainty, shape.noise = subsets, unc, noise
     shape.cov_X_mm2 = shape_covariance_mm2(G, unc.cov_reference_px2, unc.cov_target_px2)
+    if shape.bias_bound_px is None:          # the reference's texture alone: the same whatever the noise
+        shape.bias_bound_px = bias_bound_px(values, shape.x, shape.y, settings.subset_size, settings.interpolation,
+                                            order=settings.order)
+    shape.bias_bound_X_mm = shape_bias_bound_mm(G, shape.bias_bound_px)
 
 
 def measure_state(left: ScheimpflugCamera, right: ScheimpflugCamera, R_right_from_left, T_right_from_left_mm,
@@ -557,3 +570,5 @@ def _state_uncertainty(state: StereoState, shape: StereoShape, left, right, R, T
         flag[hit] = FLAG_RESIDUAL
     state.cov_X_mm2, state.cov_U_mm2 = cov_X, cov_U
     state.left_uncertainty, state.right_uncertainty, state.flag = lu, ru, flag
+    if shape.bias_bound_px is not None:
+        state.bias_bound_X_mm, state.bias_bound_U_mm = state_bias_bound_mm(G_ref, G_def, shape.bias_bound_px)

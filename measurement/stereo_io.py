@@ -14,11 +14,14 @@ from labio.atomic import atomic_write_text, atomic_writer
 from measurement.stereo_dic import StereoShape, StereoState
 
 #: Random uncertainty (standard, 1 sigma) of X, Y, Z and U, V, W, µm; the calibration's (systematic, correlated over
-#: all points) part of the same; ``sigma_flag``: 0 trusted, 1 the match residual exceeds what the noise explains,
+#: all points) part of the same; ``bias_bound_*``: a bound on the interpolation bias (systematic, per point, not in
+#: the sigma, :mod:`measurement.uncertainty.bias`); ``sigma_flag``: 0 trusted, 1 the match residual exceeds what the noise explains,
 #: 2 no match, 3 no sigma (singular subset) -- :mod:`measurement.uncertainty`.
 SIGMA_COLUMNS = ("sigma_X_um", "sigma_Y_um", "sigma_Z_um", "sigma_U_um", "sigma_V_um", "sigma_W_um",
                  "sigma_X_calib_um", "sigma_Y_calib_um", "sigma_Z_calib_um",
-                 "sigma_U_calib_um", "sigma_V_calib_um", "sigma_W_calib_um", "sigma_flag")
+                 "sigma_U_calib_um", "sigma_V_calib_um", "sigma_W_calib_um",
+                 "bias_bound_X_um", "bias_bound_Y_um", "bias_bound_Z_um",
+                 "bias_bound_U_um", "bias_bound_V_um", "bias_bound_W_um", "sigma_flag")
 CSV_COLUMNS = ("x", "y", "X", "Y", "Z", "U", "V", "W", "D", "zncc", "residual", "status", "status_name",
                *SIGMA_COLUMNS)
 
@@ -39,20 +42,28 @@ def state_sigmas(shape: StereoShape, state: StereoState | None = None) -> dict[s
         su = np.where(valid[:, None], 0.0, np.nan) * np.ones((n, 3))
         cx = _sigmas_um(getattr(shape, "calibration_cov_X_mm2", None), n)
         cu = np.where(valid[:, None] & np.isfinite(cx), 0.0, np.nan) * np.ones((n, 3))
+        bx = _values_um(shape.bias_bound_X_mm, n)
+        bu = np.where(valid[:, None] & np.isfinite(bx), 0.0, np.nan) * np.ones((n, 3))
         unc = shape.match_uncertainty
         flag = unc.flag.astype(np.int64) if unc is not None else np.full(n, -1)
     else:
         sx, su = _sigmas_um(state.cov_X_mm2, n), _sigmas_um(state.cov_U_mm2, n)
         cx = _sigmas_um(getattr(state, "calibration_cov_X_mm2", None), n)
         cu = _sigmas_um(getattr(state, "calibration_cov_U_mm2", None), n)
+        bx, bu = _values_um(state.bias_bound_X_mm, n), _values_um(state.bias_bound_U_mm, n)
         flag = state.flag.astype(np.int64) if state.flag is not None else np.full(n, -1)
     if flag.min(initial=0) >= 0:
         flag = np.where(valid & ~np.isfinite(sx[:, 0]) & (flag == 0), 3, flag)
         flag = np.where(~valid & (flag == 0), 2, flag)
     sx, su = np.where(valid[:, None], sx, np.nan), np.where(valid[:, None], su, np.nan)
     cx, cu = np.where(valid[:, None], cx, np.nan), np.where(valid[:, None], cu, np.nan)
-    values = [*sx.T, *su.T, *cx.T, *cu.T, flag]
+    bx, bu = np.where(valid[:, None], bx, np.nan), np.where(valid[:, None], bu, np.nan)
+    values = [*sx.T, *su.T, *cx.T, *cu.T, *bx.T, *bu.T, flag]
     return dict(zip(SIGMA_COLUMNS, values))
+
+
+def _values_um(values_mm, n: int) -> np.ndarray:
+    return np.full((n, 3), np.nan) if values_mm is None else 1e3 * np.asarray(values_mm, dtype=np.float64)
 
 
 def _sigmas_um(cov_mm2, n: int) -> np.ndarray:

@@ -19,7 +19,8 @@ from workbench.cli import main
 SHIFT_PX = (2.3, -1.7)
 ROI = "30,30,170,130"
 COLUMNS = ["x", "y", "u", "v", "zncc", "iterations", "status", "status_name",
-           *PARAMETER_NAMES[1:6], *PARAMETER_NAMES[7:], "sigma_u_px", "sigma_v_px", "residual_ratio", "sigma_flag"]
+           *PARAMETER_NAMES[1:6], *PARAMETER_NAMES[7:], "sigma_u_px", "sigma_v_px", "residual_ratio", "sigma_flag",
+           "bias_bound_u_px", "bias_bound_v_px"]
 
 
 @pytest.fixture(scope="module")
@@ -63,6 +64,10 @@ def test_dic_measures_the_imposed_shift(pair, tmp_path, capsys):
     sigma = np.array([[float(r[COLUMNS.index(c)]) for c in ("sigma_u_px", "sigma_v_px")] for r in converged])
     assert np.all(np.isfinite(sigma)) and np.all(sigma > 0)
     assert "noise from the match residuals" in printed
+    # on this (nearly noise-free) exact shift the error is the interpolation bias: its bound plus 3 sigma covers it
+    bound = np.array([[float(r[COLUMNS.index(c)]) for c in ("bias_bound_u_px", "bias_bound_v_px")] for r in converged])
+    error = np.abs(np.column_stack([u - SHIFT_PX[0], v - SHIFT_PX[1]]))
+    assert np.mean(error <= bound + 3 * sigma) >= 0.95, (error.max(axis=0), bound.max(axis=0))
 
 
 def test_a_negative_seed_guess_is_an_option_value(pair, tmp_path):

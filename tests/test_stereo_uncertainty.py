@@ -226,3 +226,20 @@ def test_stereo_command_measures_the_noise_on_a_static_pair(draws, tmp_path, cap
     err = capsys.readouterr().err
     assert "the right static image moved by" in err and "not a static pair" in err, err
     assert not (tmp_path / "out2").exists()
+
+
+def test_bias_bound_covers_the_systematic_error(draws):
+    """The systematic part of the error (each point's mean over the draws against the exact 1 mm translation) lies
+    within the interpolation bias bound plus twice the mean's random sigma at >= 95 % of the points, per component;
+    without the bound (the random sigma alone) it would not."""
+    U = np.array([st.U_mm for _, st in draws])
+    rnd = np.nanmean(np.array([sigmas(st.cov_U_mm2) for _, st in draws]), axis=0) / np.sqrt(len(draws))
+    bound = np.nanmean(np.array([st.bias_bound_U_mm for _, st in draws]), axis=0)
+    error = np.abs(np.nanmean(U, axis=0) - MOVE_MM)
+    ok = np.all(np.isfinite(error), axis=1) & np.all(np.isfinite(bound), axis=1)
+    covered = np.mean(error[ok] <= bound[ok] + 2 * rnd[ok], axis=0)
+    without = np.mean(error[ok] <= 2 * rnd[ok], axis=0)
+    print(f"systematic error covered by bias bound + 2 sigma_mean: {covered.round(3)}; by 2 sigma_mean alone: "
+          f"{without.round(3)}")
+    assert np.all(covered >= 0.95), covered
+    assert np.any(without < 0.95), without

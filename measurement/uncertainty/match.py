@@ -424,6 +424,9 @@ class MatchUncertainty:
     noise_source : str
         Where the noise came from: "static pair", "match residuals", "single image", "given".
     noise_reference, noise_target : NoiseModel
+    bias_bound_px : ndarray (N, 2) or None
+        Bound on the interpolation bias of u and v over sub-pixel shifts (:mod:`measurement.uncertainty.bias`):
+        systematic, kept apart from the random sigma; None when not computed.
     """
 
     sigma_u_px: np.ndarray
@@ -436,15 +439,20 @@ class MatchUncertainty:
     noise_source: str = ""
     noise_reference: NoiseModel | None = None
     noise_target: NoiseModel | None = None
+    bias_bound_px: np.ndarray | None = field(default=None, repr=False)
 
     @property
     def trusted(self) -> np.ndarray:
         return (self.flag == FLAG_NONE) & np.isfinite(self.sigma_u_px)
 
     def columns(self) -> dict[str, np.ndarray]:
-        """Per-point columns for result files: sigma_u_px, sigma_v_px, residual_ratio, sigma_flag."""
-        return {"sigma_u_px": self.sigma_u_px, "sigma_v_px": self.sigma_v_px,
-                "residual_ratio": self.residual_ratio, "sigma_flag": self.flag.astype(np.int64)}
+        """Per-point columns for result files: sigma_u_px, sigma_v_px, residual_ratio, sigma_flag (and
+        bias_bound_u_px, bias_bound_v_px when the bias bound was computed)."""
+        out = {"sigma_u_px": self.sigma_u_px, "sigma_v_px": self.sigma_v_px,
+               "residual_ratio": self.residual_ratio, "sigma_flag": self.flag.astype(np.int64)}
+        if self.bias_bound_px is not None:
+            out |= {"bias_bound_u_px": self.bias_bound_px[:, 0], "bias_bound_v_px": self.bias_bound_px[:, 1]}
+        return out
 
     def summary(self) -> dict:
         """Median sigma of u and v over the trusted points, the flagged fraction, the noise source."""
@@ -602,8 +610,9 @@ def noise_from_residuals(subsets_values: np.ndarray, x_px, y_px, result: DICResu
 
 def dic_uncertainty(reference, result: DICResult, noise_reference: NoiseModel | None = None,
                     noise_target: NoiseModel | None = None, *,
-                    max_residual_ratio: float = DEFAULT_MAX_RESIDUAL_RATIO) -> MatchUncertainty:
-    """Uncertainty of a 2-D match in one call: :func:`reference_subsets` + :func:`match_uncertainty`.
+                    max_residual_ratio: float = DEFAULT_MAX_RESIDUAL_RATIO, bias: bool = False) -> MatchUncertainty:
+    """Uncertainty of a 2-D match in one call: :func:`reference_subsets` + :func:`match_uncertainty` (and, with
+    ``bias``, the interpolation bias bound of every point, :func:`measurement.uncertainty.bias.bias_bound_px`).
 
     Without ``noise_reference`` the noise is fitted to the match's residuals (:func:`noise_from_residuals`, both
     images alike); ``noise_target`` defaults to ``noise_reference``.
@@ -625,4 +634,32 @@ def dic_uncertainty(reference, result: DICResult, noise_reference: NoiseModel | 
                                                interpolation=settings.interpolation, gains=gains)
     subsets = reference_subsets(prepared, result.x, result.y, settings.subset_size, settings.order, noise_reference,
                                 settings.interpolation, gains=gains)
-    return match_uncertainty(subsets, result, noise_target, max_residual_ratio=max_residual_ratio)
+    unc = match_uncertainty(subsets, result, noise_target, max_residual_ratio=max_residual_ratio)
+    if bias:
+        from dataclasses import replace
+
+        from .bias import bias_bound_px
+
+        unc = replace(unc, bias_bound_px=bias_bound_px(prepared.values, result.x, result.y, settings.subset_size,
+                                                       settings.interpolation, order=settings.order))
+    return unc
+
+
+def static_repeat_covariance_px2(cov_reference_px2: np.ndarray) -> np.ndarray:
+    """Covariance of (u, v) for a *static repeat* of a reference image (the 2-D noise floor), px^2, (N, 2, 2).
+
+    A second exposure of the unmoved pattern is sampled at the reference's own whole pixels, where the interpolant's
+    noise gain is 1 and, for the same camera, its noise equals the reference's: the target part equals the
+    reference part, so ``Cov (u, v) = 2 C_ref``. What a digital twin predicts from the reference image alone
+    (the stereo counterpart is :func:`measurement.uncertainty.stereo.static_repeat_covariance_mm2`).
+
+    Parameters
+    ----------
+    cov_reference_px2 : ndarray (N, 2, 2)
+        The reference noise's part of the match, px^2 (:attr:`ReferenceSubsets.cov_uv_reference` or
+        :attr:`MatchUncertainty.cov_reference_px2`).
+    """
+    cov = np.asarray(cov_reference_px2, dtype=np.float64)
+    if cov.ndim != 3 or cov.shape[1:] != (2, 2):
+        raise ValueError(f"cov_reference_px2 must have shape (N, 2, 2), got {cov.shape}")
+    return 2.0 * cov

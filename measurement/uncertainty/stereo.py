@@ -111,3 +111,21 @@ def static_repeat_covariance_mm2(G_ref: np.ndarray, cov_left_reference_px2: np.n
     """
     GL, GR = G_ref[:, :, :2], G_ref[:, :, 2:]
     return 2.0 * _sandwich(GL, cov_left_reference_px2) + 2.0 * _sandwich(GR, cov_right_reference_px2)
+
+
+def shape_bias_bound_mm(G_ref: np.ndarray, bias_bound_px: np.ndarray) -> np.ndarray:
+    """Bound on the interpolation bias of the reference points, (N, 3) mm: ``|G_R^ref| b`` (element-wise absolute
+    values), ``b`` (N, 2) the stereo match's bias bound on (u, v), px."""
+    return np.einsum("kij,kj->ki", np.abs(G_ref[:, :, 2:]), bias_bound_px)
+
+
+def state_bias_bound_mm(G_ref: np.ndarray, G_def: np.ndarray, bias_bound_px: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Bounds on the interpolation bias of the deformed points and of the displacements, each (N, 3) mm.
+
+    Every match of a point correlates the same left reference subset, so one bound ``b`` (N, 2) px holds for each
+    (:func:`measurement.uncertainty.bias.bias_bound_px`); their phases differ, so the bounds add (triangle
+    inequality): ``|G_L| b + |G_R| b`` for X and ``+ |G_R^ref| b`` for U.
+    """
+    a = np.abs(G_def[:, :, :2]) + np.abs(G_def[:, :, 2:])
+    X = np.einsum("kij,kj->ki", a, bias_bound_px)
+    return X, X + shape_bias_bound_mm(G_ref, bias_bound_px)
