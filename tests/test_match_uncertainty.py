@@ -108,3 +108,43 @@ def test_a_match_of_another_grid_is_refused():
     subsets = reference_subsets(ref, result.x[:-1], result.y[:-1], 21, 1, NoiseModel(2.0, 2.0, None, "given"))
     with pytest.raises(ValueError, match="points of interest differ"):
         match_uncertainty(subsets, result)
+
+
+@pytest.mark.parametrize("speckle_px, read_grey, order, subset", [(4.0, 2.0, 1, 21), (2.5, 5.0, 2, 41)])
+def test_static_repeat_sigma_from_the_reference_alone_is_honest(speckle_px, read_grey, order, subset):
+    """A static repeat (the same pattern exposed twice, 12 seeds): the sigma predicted from the reference image
+    alone, ``static_repeat_covariance_px2`` (2 C_ref: the target sampled at whole pixels), against each point's
+    scatter over the seeds: std(error / sigma) in [0.9, 1.1] and 95 % coverage in [0.93, 0.97] for u and v."""
+    from measurement.uncertainty.match import static_repeat_covariance_px2
+    from measurement.uncertainty.stereo import sigmas
+
+    reference, _ = fourier_shifted_pair((200, 200), speckle_px, (0.0, 0.0), seed=1, mean_grey=160.0, std_grey=25)
+    settings = DICSettings(subset_size=subset, step=10, order=order)
+    model = NoiseModel(read_grey, read_grey, None, "given")
+    errors, predicted = [], []
+    for s in range(SEEDS):
+        ref = apply_sensor_noise(reference, read_noise_grey=read_grey, bit_depth=None, seed=2 * s)
+        static = apply_sensor_noise(reference, read_noise_grey=read_grey, bit_depth=None, seed=2 * s + 1)
+        result = correlate(ref, static, settings, roi=ROI)
+        subsets = reference_subsets(ref, result.x, result.y, subset, order, model)
+        errors.append(np.column_stack([result.u, result.v]))
+        predicted.append(sigmas(static_repeat_covariance_px2(subsets.cov_uv_reference)))
+    errors, predicted = np.array(errors), np.array(predicted)
+    keep = np.all(np.isfinite(errors), axis=(0, 2)) & np.all(np.isfinite(predicted), axis=(0, 2))
+    n = errors.shape[0]
+    # about each point's own mean over the seeds, as above (a zero shift has no interpolation bias, but the claim
+    # is on the random part)
+    z = (errors - errors.mean(axis=0))[:, keep] * np.sqrt(n / (n - 1)) / predicted[:, keep]
+    spread = z.std(axis=(0, 1))
+    coverage = np.mean(np.abs(z) < 1.959964, axis=(0, 1))
+    print(f"static repeat, speckle {speckle_px} px, noise {read_grey} grey, order {order}, subset {subset}: std(z) "
+          f"{spread.round(3)}, 95 % coverage {coverage.round(3)} over {z.shape[1]} points x {z.shape[0]} draws")
+    assert np.all((spread > 0.9) & (spread < 1.1))
+    assert np.all((coverage > 0.93) & (coverage < 0.97))
+
+
+def test_static_repeat_covariance_px2_refuses_another_shape():
+    from measurement.uncertainty.match import static_repeat_covariance_px2
+
+    with pytest.raises(ValueError, match=r"cov_reference_px2 must have shape \(N, 2, 2\), got \(4, 3, 3\)"):
+        static_repeat_covariance_px2(np.zeros((4, 3, 3)))

@@ -106,10 +106,13 @@ def twin_command(args) -> int:
     print("predicted static noise (1 sigma): " + ", ".join(
         f"{k.split('_')[0]} {v:.3g} {unit}" for k, v in result.prediction["noise"].items()) + "; strain " + ", ".join(
         f"{k} {v:.3g} µε" for k, v in result.prediction["strain_ue"].items()))
+    if result.prediction.get("instrument_sigma"):
+        print("instrument's sigma (measurement.uncertainty): " + ", ".join(
+            f"{k.split('_')[0]} {v:.3g} {unit}" for k, v in result.prediction["instrument_sigma"].items()))
     if result.comparison:
         print("measured on your static pair: " + ", ".join(
-            f"{k.split('_')[0]} {c['measured']:.3g} (predicted/measured {c['ratio']:.2f})"
-            for k, c in result.comparison.items() if not k.endswith("_ue")))
+            f"{k.split('_')[0]} {c['measured']:.3g} (predicted/measured {c['ratio']:.2f}, instrument's sigma/measured "
+            f"{c['instrument_ratio']:.2f})" for k, c in result.comparison.items() if not k.endswith("_ue")))
     if result.whatif:
         for line in advice(result.whatif)["lines"]:       # the report's verdict, word for word
             print(line)

@@ -4,9 +4,10 @@ From the user's calibration file and images the twin reads their speckle (histog
 SSSIG and MIG per subset, saturation) and each camera's noise (measured from a static pair, else estimated from
 one image), paints their photographed pattern on a plane in front of their rig, renders it through their
 cameras with their noise, and runs the instrument on it: the static noise floor of U, V, W (µm) and of strain
-(µε) per point and pooled, the Pan-type bound beside it, the interpolation bias and the spatial resolution
-(l10) on their pattern, and a ranked what-if table of subset, step, order and strain window. With a real static
-pair the same instrument measures it, and the prediction is compared with it.
+(µε) per point and pooled, the instrument's own predicted sigma beside it (:mod:`measurement.uncertainty`, with
+their noise), the interpolation bias and the spatial resolution (l10) on their pattern, and a ranked what-if table
+of subset, step, order and strain window. With a real static pair the same instrument measures it, and both
+predictions are compared with it.
 
 Python API::
 

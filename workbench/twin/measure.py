@@ -10,7 +10,11 @@ images are real or the twin's, so a prediction and a measurement are compared li
 * the same after a rigid-body fit is removed (stereo) or a plane per component (2-D): a gap between the two
   says the "static" pair moved (vibration, a mount settling), which is not noise;
 * strain noise = standard deviation of E11, E22, E12 (µε) with the strain window;
-* the mean motion of the left camera's temporal match, px (the "is it static?" test).
+* the mean motion of the left camera's temporal match, px (the "is it static?" test);
+* with the cameras' noise models given, the instrument's own predicted sigma of a static repeat at each point
+  (:mod:`measurement.uncertainty`: :func:`~measurement.uncertainty.stereo.static_repeat_covariance_mm2` from the
+  reference shape, :func:`~measurement.uncertainty.match.static_repeat_covariance_px2` from the reference subsets),
+  and its RMS over the same points as the noise figures: what the measured noise should read.
 """
 from __future__ import annotations
 
@@ -20,9 +24,12 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from measurement.dic import DICSettings, correlate
+from measurement.dic.correlate import prepare_image
 from measurement.rigid import remove_rigid_motion
 from measurement.stereo_dic import measure_state, reference_shape
 from measurement.strain import surface_strain
+from measurement.uncertainty.match import reference_subsets, static_repeat_covariance_px2
+from measurement.uncertainty.stereo import sigmas, static_repeat_covariance_mm2, triangulation_sensitivity
 
 #: A point whose value lies beyond this many robust sigma (1.4826 MAD) of the median is an outlier (a bad match),
 #: dropped from the noise figures alike for the real pair and the twin.
@@ -62,6 +69,11 @@ class StaticNoise:
     right_motion_uv_px : (float, float)
         Mean motion of the right camera's image between the exposures (stereo), px: the static right match less the
         reference right match.
+    instrument_sigma : dict
+        The instrument's predicted static-repeat sigma (module notes), RMS over the points of ``noise``, same keys
+        and units; empty without noise models.
+    sigma : ndarray, shape (N, 3) or (N, 2), or None
+        That sigma per point (µm or px), NaN where undefined; None without noise models.
     """
 
     kind: str
@@ -79,9 +91,12 @@ class StaticNoise:
     right_xy_px: np.ndarray | None = field(default=None, repr=False)
     mean_motion_uv_px: tuple = (0.0, 0.0)
     right_motion_uv_px: tuple = (0.0, 0.0)
+    instrument_sigma: dict = field(default_factory=dict)
+    sigma: np.ndarray | None = field(default=None, repr=False)
 
     def summary(self) -> dict:
         out = {"kind": self.kind, **{k: float(v) for k, v in self.noise.items()},
+               **{f"{k}_instrument_sigma": float(v) for k, v in self.instrument_sigma.items()},
                **{f"{k}_detrended": float(v) for k, v in self.detrended.items()},
                **{f"{k}_ue": float(v) for k, v in self.strain_ue.items()},
                "mean_motion_px": float(self.mean_motion_px), "motion_sigma_px": float(self.motion_sigma_px),
@@ -117,6 +132,41 @@ def _grid(x: np.ndarray, y: np.ndarray, values: np.ndarray) -> np.ndarray:
     return out
 
 
+def _rms_over(sigma: np.ndarray, ok: np.ndarray, names) -> dict:
+    """RMS over the rows ``ok`` of each column of ``sigma`` (finite values only): the pooled predicted sigma."""
+    out = {}
+    for k, name in enumerate(names):
+        v = sigma[ok, k]
+        v = v[np.isfinite(v)]
+        out[name] = float(np.sqrt(np.mean(v * v))) if v.size else math.nan
+    return out
+
+
+def instrument_sigma_stereo(rig, shape) -> np.ndarray:
+    """The instrument's predicted sigma of U, V, W for a static repeat of ``shape``'s reference pair, (N, 3) µm.
+
+    :func:`measurement.uncertainty.stereo.static_repeat_covariance_mm2` with the shape's own match uncertainty
+    (the noise models it was measured with); NaN where the shape has none."""
+    unc = shape.match_uncertainty
+    if unc is None:
+        return np.full((shape.x.size, 3), np.nan)
+    G = triangulation_sensitivity(rig.left, rig.right, rig.R_right_from_left, rig.T_right_from_left_mm, shape.X_mm)
+    return sigmas(static_repeat_covariance_mm2(G, unc.cov_reference_px2, unc.cov_target_px2)) * 1e3
+
+
+def instrument_sigma_2d(reference, x_px, y_px, settings: DICSettings, noise) -> np.ndarray:
+    """The instrument's predicted sigma of u, v for a static repeat of ``reference``, (N, 2) px.
+
+    :func:`measurement.uncertainty.match.reference_subsets` at the points with the camera's noise model, then
+    :func:`measurement.uncertainty.match.static_repeat_covariance_px2`; NaN where the subset's Hessian is singular
+    or the subset leaves the image."""
+    prepared = prepare_image(np.asarray(reference), settings.interpolation, True, "reference",
+                             settings.lowpass_sigma_px)
+    subsets = reference_subsets(prepared, np.asarray(x_px, dtype=np.int64), np.asarray(y_px, dtype=np.int64),
+                                settings.subset_size, settings.order, noise, settings.interpolation)
+    return sigmas(static_repeat_covariance_px2(subsets.cov_uv_reference))
+
+
 def strain_noise(X_ref: np.ndarray, X_def: np.ndarray, x, y, window: int | None) -> dict:
     """1 sigma of E11, E22, E12 (µε) of a static pair's points on their grid (``surface_strain`` with ``window``
     grid points, or triangles for None); empty when the grid is smaller than the window."""
@@ -128,7 +178,8 @@ def strain_noise(X_ref: np.ndarray, X_def: np.ndarray, x, y, window: int | None)
 
 
 def static_noise_stereo(rig, left_ref, right_ref, left_static, right_static, settings: DICSettings, *,
-                        roi=None, mask=None, strain_window: int | None = 5, shape=None) -> StaticNoise:
+                        roi=None, mask=None, strain_window: int | None = 5, shape=None,
+                        noise: dict | None = None) -> StaticNoise:
     """Measure a stereo static pair with the instrument (module notes).
 
     Parameters
@@ -142,20 +193,30 @@ def static_noise_stereo(rig, left_ref, right_ref, left_static, right_static, set
         Strain window in grid points (None: triangles).
     shape : StereoShape, optional
         A reference shape already measured from ``left_ref``/``right_ref`` (saves one match).
+    noise : {"left": NoiseModel, "right": NoiseModel}, optional
+        The cameras' noise models: the reference shape's uncertainty is computed with them and the instrument's
+        predicted static sigma is returned beside the measured noise (``instrument_sigma``, ``sigma``).
 
     Returns
     -------
     StaticNoise
+
+    Raises
+    ------
+    ValueError
+        Both ``shape`` and ``noise`` given, the shape measured with other noise models.
     """
     cams = (rig.left, rig.right, rig.R_right_from_left, rig.T_right_from_left_mm)
     if shape is None:
-        shape = reference_shape(*cams, left_ref, right_ref, settings, roi=roi, mask=mask)
+        shape = reference_shape(*cams, left_ref, right_ref, settings, roi=roi, mask=mask, noise=noise)
+    elif noise is not None and shape.noise is not noise:
+        raise ValueError("the given reference shape's uncertainty was computed with other noise models than `noise`")
     state = measure_state(*cams, shape, left_ref, left_static, right_static, settings, name="static repeat")
     U_um = state.U_mm * 1e3
     bad = _outliers(U_um)
     ok = state.valid & ~bad & np.all(np.isfinite(U_um), axis=1)
     values = np.where(ok[:, None], U_um - np.nanmean(U_um[ok], axis=0), np.nan)
-    noise = {f"{c}_um": _std(values[:, k]) for k, c in enumerate("UVW")}
+    figures = {f"{c}_um": _std(values[:, k]) for k, c in enumerate("UVW")}
     detrended = {}
     if ok.sum() >= 10:
         removal = remove_rigid_motion(shape.X_mm[ok], state.X_mm[ok])
@@ -172,20 +233,27 @@ def static_noise_stereo(rig, left_ref, right_ref, left_static, right_static, set
     du, dv = state.right_match.u - rm.u, state.right_match.v - rm.v
     both = np.isfinite(du) & np.isfinite(dv)
     right_uv = (float(np.mean(du[both])), float(np.mean(dv[both]))) if both.any() else (0.0, 0.0)
-    return StaticNoise("stereo", noise, detrended, strain, float(np.hypot(*mean_uv)), motion_sigma, int(ok.sum()),
+    sigma, predicted = None, {}
+    if noise is not None:
+        sigma = instrument_sigma_stereo(rig, shape)
+        predicted = _rms_over(sigma, ok, list(figures))
+    return StaticNoise("stereo", figures, detrended, strain, float(np.hypot(*mean_uv)), motion_sigma, int(ok.sum()),
                        int(bad.sum()), shape.x.astype(np.float64), shape.y.astype(np.float64), values, shape.X_mm,
-                       right_xy, mean_uv, right_uv)
+                       right_xy, mean_uv, right_uv, predicted, sigma)
 
 
 def static_noise_2d(reference, static, settings: DICSettings, *, roi=None, mask=None,
-                    strain_window: int | None = 5) -> StaticNoise:
-    """Measure a one-camera static pair with the instrument (module notes); u, v in px."""
+                    strain_window: int | None = 5, noise=None) -> StaticNoise:
+    """Measure a one-camera static pair with the instrument (module notes); u, v in px.
+
+    With the camera's ``noise`` (a :class:`~measurement.speckle_quality.NoiseModel`) the instrument's predicted
+    static sigma is returned beside the measured noise (``instrument_sigma``, ``sigma``)."""
     result = correlate(reference, static, settings, roi=roi, mask=mask)
     uv = np.column_stack([result.u, result.v]).astype(np.float64)
     bad = _outliers(uv)
     ok = result.converged & ~bad & np.all(np.isfinite(uv), axis=1)
     values = np.where(ok[:, None], uv - np.nanmean(uv[ok], axis=0), np.nan)
-    noise = {"u_px": _std(values[:, 0]), "v_px": _std(values[:, 1])}
+    figures = {"u_px": _std(values[:, 0]), "v_px": _std(values[:, 1])}
     x, y = result.x.astype(np.float64), result.y.astype(np.float64)
     detrended = {}
     if ok.sum() >= 10:
@@ -198,6 +266,11 @@ def static_noise_2d(reference, static, settings: DICSettings, *, roi=None, mask=
     strain = strain_noise(np.where(ok[:, None], X_ref, np.nan), np.where(ok[:, None], X_def, np.nan), x, y,
                            strain_window)
     mean_uv = tuple(float(m) for m in np.nanmean(uv[ok], axis=0)) if ok.any() else (math.nan, math.nan)
-    motion_sigma = float(np.sqrt(0.5 * (noise["u_px"] ** 2 + noise["v_px"] ** 2)))
-    return StaticNoise("2d", noise, detrended, strain, float(np.hypot(*mean_uv)), motion_sigma, int(ok.sum()),
-                       int(bad.sum()), x, y, values, None, None, mean_uv)
+    motion_sigma = float(np.sqrt(0.5 * (figures["u_px"] ** 2 + figures["v_px"] ** 2)))
+    sigma, predicted = None, {}
+    if noise is not None:
+        sigma = instrument_sigma_2d(reference, result.x, result.y, settings, noise)
+        sigma[~result.converged] = np.nan           # as the stereo shape: no match, no sigma
+        predicted = _rms_over(sigma, ok, list(figures))
+    return StaticNoise("2d", figures, detrended, strain, float(np.hypot(*mean_uv)), motion_sigma, int(ok.sum()),
+                       int(bad.sum()), x, y, values, None, None, mean_uv, (0.0, 0.0), predicted, sigma)

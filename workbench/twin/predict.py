@@ -1,13 +1,11 @@
-"""The twin's predictions: the instrument run on the twin's images, and the Pan-type bound beside it.
+"""The twin's predictions: the instrument run on the twin's images, and the instrument's own sigma beside it.
 
 * :func:`twin_static_noise` -- ``repeats`` static pairs of the twin (fresh noise draws of each camera's noise
   model), each measured by :mod:`workbench.twin.measure` exactly as the real pair is; pooled over repeats
   (root mean square of the per-repeat standard deviations) and per point (standard deviation over repeats).
-* :func:`pan_bound_stereo` / :func:`pan_bound_2d` -- Pan et al. (2008)'s noise-limited precision of each
-  camera's match, ``2 sigma^2 / SSSIG`` per pixel coordinate (the temporal match of the left camera, the
-  difference of the two right matches, which share the left reference's noise), carried through both cameras'
-  projection Jacobians (``Cov U = (J^T W J)^-1``, W the inverse pixel variances): a lower bound, first-order
-  subsets, exact gradients, no interpolation error.
+  Each repeat's reference is measured with the cameras' noise models, so each also carries the instrument's
+  predicted static sigma (:mod:`measurement.uncertainty`; one implementation, the instrument's: the twin only
+  arranges the scene), pooled the same way (:attr:`PooledNoise.instrument_sigma`, :attr:`PooledNoise.sigma_map`).
 * :func:`interpolation_bias_px` -- the instrument's bias on the user's pattern: sub-pixel translations of the
   band-limited pattern (Fourier shift of a mirrored crop, exact for a band-limited image), noise-free.
 * :func:`spatial_resolution` -- l10 (DIC Challenge 2.0) of the user's settings on the user's pattern: the Star
@@ -23,8 +21,6 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from measurement.dic import DICSettings, correlate
-from measurement.speckle_quality import pan_bound_px, subset_sssig
-from measurement.stereo import projection_jacobian
 from scenes.image_texture import ImageTexture, render_deformed_image
 from scenes.star import StarImages, star_displacement_for_shape
 from scenes.synthetic_images import fourier_shift
@@ -45,6 +41,11 @@ class PooledNoise:
     per_point : ndarray, shape (N, 3) or (N, 2)
         Standard deviation over repeats at each point (NaN with fewer than 2 valid repeats).
     runs : list of StaticNoise
+    instrument_sigma : dict
+        RMS over repeats of each repeat's instrument sigma (its RMS over the measured points), keys of ``noise``;
+        empty when the repeats were measured without noise models.
+    sigma_map : ndarray, shape (N, 3) or (N, 2), or None
+        The instrument's predicted sigma per point, RMS over repeats (µm or px).
     """
 
     noise: dict
@@ -52,6 +53,8 @@ class PooledNoise:
     detrended: dict
     per_point: np.ndarray = field(repr=False)
     runs: list = field(repr=False, default_factory=list)
+    instrument_sigma: dict = field(default_factory=dict)
+    sigma_map: np.ndarray | None = field(default=None, repr=False)
 
     @property
     def x_px(self):
@@ -75,7 +78,13 @@ def pool(runs: list[StaticNoise]) -> PooledNoise:
         mean = np.nanmean(stack, axis=0) if len(runs) > 1 else stack[0]
         per_point = np.sqrt(np.nansum((stack - mean) ** 2, axis=0) / np.maximum(count - 1, 1))
     per_point = np.where(count >= 2, per_point, np.nan)
-    return PooledNoise(rms("noise"), rms("strain_ue"), rms("detrended"), per_point, runs)
+    sigma_map = None
+    if all(r.sigma is not None for r in runs):
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)   # points with no sigma in any repeat stay NaN
+            sigma_map = np.sqrt(np.nanmean(np.stack([r.sigma for r in runs]) ** 2, axis=0))
+    return PooledNoise(rms("noise"), rms("strain_ue"), rms("detrended"), per_point, runs,
+                       rms("instrument_sigma") if sigma_map is not None else {}, sigma_map)
 
 
 def draws(scene, noise_models: dict, bit_depth: int, seed: int, repeat: int) -> dict:
@@ -91,101 +100,21 @@ def draws(scene, noise_models: dict, bit_depth: int, seed: int, repeat: int) -> 
 
 def twin_static_noise(scene, noise_models: dict, bit_depth: int, settings: DICSettings, *, roi=None, mask=None,
                       strain_window: int | None = 5, repeats: int = 2, seed: int = 0, progress=None) -> PooledNoise:
-    """Measure ``repeats`` twin static pairs with the instrument and pool them (module notes)."""
+    """Measure ``repeats`` twin static pairs with the instrument and pool them (module notes); the instrument
+    is given ``noise_models`` (the ones the twin's noise is drawn from) for its predicted sigma."""
     runs = []
     for r in range(int(repeats)):
         images = draws(scene, noise_models, bit_depth, seed, r)
         if "right" in images:
             runs.append(static_noise_stereo(scene.rig, images["left"], images["right"], images["static_left"],
                                             images["static_right"], settings, roi=roi, mask=mask,
-                                            strain_window=strain_window))
+                                            strain_window=strain_window, noise=noise_models))
         else:
             runs.append(static_noise_2d(images["left"], images["static_left"], settings, roi=roi, mask=mask,
-                                        strain_window=strain_window))
+                                        strain_window=strain_window, noise=noise_models["left"]))
         if progress is not None:
             progress(f"twin static pair {r + 1}/{repeats}")
     return pool(runs)
-
-
-def _subset_mean(image: np.ndarray, x, y, subset: int) -> np.ndarray:
-    from scipy import ndimage
-
-    return ndimage.uniform_filter(np.asarray(image, float), size=subset, mode="nearest")[y, x]
-
-
-def _inside(shape, x, y, half) -> np.ndarray:
-    return (x >= half) & (y >= half) & (x < shape[1] - half) & (y < shape[0] - half)
-
-
-def pan_bound_2d(image: np.ndarray, x_px, y_px, subset: int, noise_model) -> tuple[dict, np.ndarray]:
-    """Pan bound of u and v: RMS over the points, and per point (N, 2), px."""
-    x = np.rint(np.asarray(x_px)).astype(np.int64)
-    y = np.rint(np.asarray(y_px)).astype(np.int64)
-    ok = _inside(image.shape, x, y, subset // 2)
-    sigma = noise_model.sigma_at(_subset_mean(image, x[ok], y[ok], subset))
-    sx, sy, _ = subset_sssig(image, x[ok], y[ok], subset, float(np.median(sigma)))
-    bx, by = pan_bound_px(sx, 1.0) * sigma, pan_bound_px(sy, 1.0) * sigma
-    per_point = np.full((x.size, 2), np.nan)
-    per_point[ok] = np.column_stack([bx, by])
-    return {"u_px": _rms(bx), "v_px": _rms(by)}, per_point
-
-
-def _rms(values) -> float:
-    v = np.asarray(values, dtype=np.float64)
-    v = v[np.isfinite(v)]
-    return float(np.sqrt(np.mean(v ** 2))) if v.size else math.nan
-
-
-def pan_bound_stereo(rig, left: np.ndarray, right: np.ndarray, x_px, y_px, right_xy_px, X_mm, subset: int,
-                     noise_models: dict) -> tuple[dict, np.ndarray]:
-    """Pan-type bound of U, V, W (µm): per point and its RMS over the points (module notes).
-
-    Parameters
-    ----------
-    rig : the measuring rig
-    left, right : reference images
-    x_px, y_px : (N,) points on the left image; right_xy_px : (N, 2) their match in the right image
-    X_mm : (N, 3) reference positions (left camera frame)
-    subset : int
-    noise_models : {"left": NoiseModel, "right": NoiseModel}
-
-    Returns
-    -------
-    summary : dict ``{"U_um", "V_um", "W_um"}``
-    per_point : ndarray, shape (N, 3), µm (NaN where undefined)
-    """
-    n = len(x_px)
-    out = np.full((n, 3), np.nan)
-    half = subset // 2
-    xl = np.rint(np.asarray(x_px)).astype(np.int64)
-    yl = np.rint(np.asarray(y_px)).astype(np.int64)
-    rxy = np.asarray(right_xy_px, dtype=np.float64)
-    ok = np.all(np.isfinite(rxy), axis=1) & np.all(np.isfinite(X_mm), axis=1)
-    xr = np.rint(np.where(ok, rxy[:, 0], 0)).astype(np.int64)
-    yr = np.rint(np.where(ok, rxy[:, 1], 0)).astype(np.int64)
-    ok &= _inside(left.shape, xl, yl, half) & _inside(right.shape, xr, yr, half)
-    if not ok.any():
-        return {f"{c}_um": math.nan for c in "UVW"}, out
-    var = []
-    for image, xs, ys, model in ((left, xl[ok], yl[ok], noise_models["left"]),
-                                 (right, xr[ok], yr[ok], noise_models["right"])):
-        sigma = model.sigma_at(_subset_mean(image, xs, ys, subset))
-        sx, sy, _ = subset_sssig(image, xs, ys, subset, float(np.median(sigma)))
-        var.append((pan_bound_px(sx, 1.0) * sigma) ** 2)
-        var.append((pan_bound_px(sy, 1.0) * sigma) ** 2)
-    X = np.asarray(X_mm, dtype=np.float64)[ok]
-    R = np.asarray(rig.R_right_from_left, float)
-    T = np.asarray(rig.T_right_from_left_mm, float)
-    J = np.concatenate([projection_jacobian(rig.left, X), projection_jacobian(rig.right, X @ R.T + T) @ R], axis=1)
-    W = 1.0 / np.stack(var, axis=1)                          # (M, 4): left u, left v, right u, right v
-    normal = np.einsum("mai,ma,maj->mij", J, W, J)
-    good = np.all(np.isfinite(normal), axis=(1, 2)) & np.all(W > 0, axis=1)
-    good[good] &= np.linalg.cond(normal[good]) < 1e12
-    cov = np.full(normal.shape, np.nan)
-    cov[good] = np.linalg.inv(normal[good])
-    sd = np.sqrt(np.einsum("mii->mi", cov)) * 1e3
-    out[ok] = sd
-    return {f"{c}_um": _rms(sd[:, k]) for k, c in enumerate("UVW")}, out
 
 
 def _mirrored(crop: np.ndarray) -> np.ndarray:

@@ -1,8 +1,9 @@
 """The twin's report: ``report.html`` (self-contained), ``report.md``, ``twin.json``, ``twin_points.csv``, figures.
 
-What a user looks at first: the predicted noise floor (and, with a static pair, beside what the instrument
-measured on it), the what-if table with the top recommendation, maps of the predicted noise over the ROI, the
-speckle-quality figures (image, histogram, SSSIG/Pan map, noise model), and the Star curve on their pattern.
+What a user looks at first: the predicted noise floor -- the twin's repeats and, beside them, the instrument's own
+predicted sigma of a static repeat (:mod:`measurement.uncertainty`) -- and, with a static pair, what the instrument
+measured on it; the what-if table with the top recommendation, maps of the predicted noise over the ROI, the
+speckle-quality figures (image, histogram, noise model), and the Star curve on their pattern.
 """
 from __future__ import annotations
 
@@ -69,26 +70,31 @@ def _maps_figure(result, out: Path) -> str | None:
     unit = "µm" if result.inputs.stereo else "px"
     rows = []
     if per_point is not None and np.isfinite(per_point).any():     # needs two twin repeats or more
-        rows.append(("twin: predicted 1σ (local RMS, 5 x 5 points)", per_point))
-    if maps.get("pan_bound") is not None:
-        rows.append(("Pan-type bound per point", maps["pan_bound"]))
+        rows.append(("twin repeats: 1σ (local RMS, 5 x 5 points)", per_point))
+    if maps.get("instrument_sigma") is not None:
+        rows.append(("instrument's 1σ (measurement.uncertainty)", maps["instrument_sigma"]))
     if maps.get("measured") is not None:
         rows.append(("your static pair: measured value (mean removed)", maps["measured"]))
     if not rows:
         return None
     fig, axes = plt.subplots(len(rows), len(names), figsize=(4.2 * len(names), 2.9 * len(rows)), squeeze=False)
+    grids = [[_grid(maps["x_px"], maps["y_px"], values[:, c]) for c in range(len(names))] for _, values in rows]
+    for r, (title, _) in enumerate(rows):
+        if title.startswith("twin"):          # a per-point spread from a few repeats is itself noisy
+            grids[r] = [(_local_rms(g), extent) for g, extent in grids[r]]
     for r, (title, values) in enumerate(rows):
         for c, name in enumerate(names):
-            grid, extent = _grid(maps["x_px"], maps["y_px"], values[:, c])
-            if title.startswith("twin"):
-                grid = _local_rms(grid)       # a per-point spread from a few repeats is itself noisy
+            grid, extent = grids[r][c]
             ax = axes[r, c]
             finite = grid[np.isfinite(grid)]
             if "measured" in title:
                 lim = np.percentile(np.abs(finite), 99) if finite.size else 1
                 im = ax.imshow(grid, extent=extent, cmap="RdBu_r", vmin=-lim, vmax=lim, aspect="equal")
             else:
-                hi = np.percentile(finite, 99) if finite.size else 1
+                # the twin's and the instrument's sigma on one scale, so that the maps compare
+                both = np.concatenate([grids[k][c][0].ravel() for k, (t, _) in enumerate(rows) if "measured" not in t])
+                both = both[np.isfinite(both)]
+                hi = np.percentile(both, 99) if both.size else 1
                 im = ax.imshow(grid, extent=extent, cmap="viridis", vmin=0, vmax=hi, aspect="equal")
             ax.set_title(f"{name}: {title}", fontsize=8)
             ax.set_xlabel("x (px, left image)", fontsize=7)
@@ -155,9 +161,9 @@ def _whatif_figure(result, out: Path) -> str | None:
     y = np.arange(len(rows))
     unit = "µm" if result.inputs.stereo else "px"
     disp = [r["displacement_noise"] for r in rows][::-1]
-    bound = [r["pan_bound_figure"] for r in rows][::-1]
-    axes[0].barh(y, disp, color=["C2" if r.get("rank") == 1 else "C0" for r in rows][::-1], label="twin")
-    axes[0].plot(bound, y, "k|", ms=14, label="Pan-type bound")
+    sigma = [r.get("instrument_sigma_figure", math.nan) for r in rows][::-1]
+    axes[0].barh(y, disp, color=["C2" if r.get("rank") == 1 else "C0" for r in rows][::-1], label="twin repeats")
+    axes[0].plot(sigma, y, "k|", ms=14, label="instrument's sigma (measurement.uncertainty)")
     axes[0].set_yticks(y, labels, fontsize=7)
     axes[0].set_xlabel(f"displacement noise, RMS of components ({unit})", fontsize=8)
     axes[0].legend(fontsize=7)
@@ -205,24 +211,28 @@ def report_markdown(result, figures: dict) -> str:
               f"{result.settings.strain_window} points (virtual strain gauge {_fmt(p.get('vsg_px'))} px)",
               f"- twin repeats: {p.get('repeats')} static pair(s), {p.get('points')} points", ""]
     lines += ["## Predicted noise floor", "",
-              f"Static noise (1σ over the ROI, mean removed) of the instrument with your settings on the twin; "
-              f"the Pan-type bound (Pan et al. 2008, first-order subsets, exact gradients) is a floor no setting "
-              f"beats.", "", "| quantity | twin prediction | Pan-type bound |" +
-              (" your static pair (measured) | predicted / measured |" if result.comparison else ""),
-              "|---|---|---|" + ("---|---|" if result.comparison else "")]
+              f"Static noise (1σ over the ROI, mean removed) of the instrument with your settings on the twin's "
+              f"static pairs; beside it the instrument's own predicted sigma of a static repeat "
+              f"(measurement.uncertainty: each subset's Hessian and your noise model"
+              + (", carried through both cameras' triangulation" if stereo else "") +
+              "; RMS over the same points), the figure the instrument reports with every measurement.", "",
+              "| quantity | twin repeats | instrument's sigma |" +
+              (" your static pair (measured) | twin / measured | instrument / measured |" if result.comparison
+               else ""),
+              "|---|---|---|" + ("---|---|---|" if result.comparison else "")]
     for n in names:
         row = f"| {n.replace('_um', ' (µm)').replace('_px', ' (px)')} | {_fmt(p['noise'].get(n))} | " \
-              f"{_fmt(p['pan_bound'].get(n))} |"
+              f"{_fmt(p['instrument_sigma'].get(n))} |"
         if result.comparison:
             c = result.comparison[n]
-            row += f" {_fmt(c['measured'])} | {_fmt(c['ratio'])} |"
+            row += f" {_fmt(c['measured'])} | {_fmt(c['ratio'])} | {_fmt(c.get('instrument_ratio'))} |"
         lines.append(row)
     for n in ("E11", "E22", "E12"):
         if n in p["strain_ue"]:
             row = f"| {n} (µε) | {_fmt(p['strain_ue'][n])} | - |"
             if result.comparison and f"{n}_ue" in result.comparison:
                 c = result.comparison[f"{n}_ue"]
-                row += f" {_fmt(c['measured'])} | {_fmt(c['ratio'])} |"
+                row += f" {_fmt(c['measured'])} | {_fmt(c['ratio'])} | - |"
             lines.append(row)
     lines.append("")
     if "bias" in p:
@@ -245,7 +255,7 @@ def report_markdown(result, figures: dict) -> str:
               f"change of the {result.whatif[0].get('objective', 'displacement') if result.whatif else ''} "
               "noise. l10 (theory) and the virtual strain gauge say what each costs in spatial resolution.", ""]
     if result.whatif:
-        lines += [f"| rank | change | displacement noise ({unit}) | vs yours | Pan-type bound ({unit}) | "
+        lines += [f"| rank | change | displacement noise ({unit}) | vs yours | instrument's sigma ({unit}) | "
                   "strain noise (µε) | l10 theory (px) | VSG (px) |", "|---|---|---|---|---|---|---|---|"]
         for r in result.whatif:
             if "displacement_noise" not in r:
@@ -255,7 +265,7 @@ def report_markdown(result, figures: dict) -> str:
                 f"{100 * r['change']:+.0f} %" if r.get("change") is not None and math.isfinite(r["change"]) else "-")
             label = r["label"] + (f" ({r['note']})" if r.get("note") else "")
             lines.append(f"| {r.get('rank') or ''} | {label} | {_fmt(r['displacement_noise'])} | {change} | "
-                         f"{_fmt(r['pan_bound_figure'])} | {_fmt(r['strain_noise_ue'])} | "
+                         f"{_fmt(r.get('instrument_sigma_figure'))} | {_fmt(r['strain_noise_ue'])} | "
                          f"{_fmt(r['l10_theory_px'])} | {_fmt(r['vsg_px'])} |")
         lines.append("")
         if figures.get("whatif"):
@@ -297,12 +307,13 @@ def report_markdown(result, figures: dict) -> str:
 def write_points_csv(result, path: Path) -> None:
     maps = result.maps
     names = ["U_um", "V_um", "W_um"] if result.inputs.stereo else ["u_px", "v_px"]
-    header = ["x_px", "y_px"] + [f"predicted_sigma_{n}" for n in names] + [f"pan_bound_{n}" for n in names] + \
+    header = ["x_px", "y_px"] + [f"predicted_sigma_{n}" for n in names] + \
+        [f"instrument_sigma_{n}" for n in names] + \
         [f"measured_{n}" for n in names] + ["sssig_x_grey2", "sssig_y_grey2", "mig_grey_per_px"]
     n = len(maps["x_px"])
     empty = np.full((n, len(names)), np.nan)
     cols = [maps["x_px"], maps["y_px"], *maps["per_point"].T,
-            *(maps["pan_bound"] if maps.get("pan_bound") is not None else empty).T,
+            *(maps["instrument_sigma"] if maps.get("instrument_sigma") is not None else empty).T,
             *(maps["measured"] if maps.get("measured") is not None else empty).T,
             *(maps["sssig"] if maps.get("sssig") is not None else np.full((n, 3), np.nan)).T]
     with atomic_writer(path, "w", newline="") as f:

@@ -9,8 +9,9 @@
    each camera's noise model (measured from the static pair, motion and illumination drift undone; else
    estimated from one image), the subset advice (too fine / too coarse are refused, with the subset it needs).
 4. The twin (:mod:`.scene`): the pattern on the plane, rendered through the rig; its static pairs measured by the
-   instrument (:mod:`.predict`): the noise floor of U, V, W (µm) and strain (µε) per point and pooled, the
-   Pan-type bound, the interpolation bias on the pattern, l10 on the pattern.
+   instrument (:mod:`.predict`): the noise floor of U, V, W (µm) and strain (µε) per point and pooled, beside it
+   the instrument's own predicted sigma of a static repeat (:mod:`measurement.uncertainty`, with the cameras' noise
+   models), the interpolation bias on the pattern, l10 on the pattern.
 5. The what-if table (:mod:`.whatif`; with the lens stated, f-number and focus rows from :mod:`.optics`); with a
    static pair, the top settings recommendation is also applied to the real pair and measured.
 """
@@ -31,8 +32,7 @@ from measurement.stereo_dic import reference_shape
 
 from .inputs import TwinInputs, load_inputs
 from .measure import static_noise_2d, static_noise_stereo
-from .predict import (draws, interpolation_bias_px, pan_bound_2d, pan_bound_stereo, spatial_resolution,
-                      twin_static_noise)
+from .predict import interpolation_bias_px, spatial_resolution, twin_static_noise
 from .scene import TwinScene, build_stereo_scene, default_plane, plane_through_points, twin_rig
 from .whatif import (displacement_figure, rank, strain_figure, strain_only, theory_l10, variants, vsg_px)
 
@@ -229,17 +229,15 @@ def optics_rows(scene, lens, regions, noise_models, inputs, dic, window, roi, ma
         p = twin_static_noise(changed, noise_models, inputs.bit_depth, dic, roi=roi, mask=mask, strain_window=window,
                               repeats=1, seed=seed)
         r0 = p.runs[0]
-        images = draws(changed, noise_models, inputs.bit_depth, seed, 0)
-        b, _ = pan_bound_stereo(changed.rig, images["left"], images["right"], r0.x_px, r0.y_px, r0.right_xy_px,
-                                r0.X_ref_mm, dic.subset_size, noise_models)
         left = info["left"]
         note = (f"blur sigma {left['sigma_now_px']:.2f} -> {left['sigma_new_px']:.2f} px, light x "
                 f"{left['light_factor']:.2f}" + (" (sharper than your image: the twin cannot sharpen, only the light "
                                                   "changes)" if left["sharper"] else ""))
         rows.append({"label": label, "subset_px": dic.subset_size, "step_px": dic.step, "order": dic.order,
-                     "strain_window": window, "noise": r0.noise, "strain_ue": r0.strain_ue, "pan_bound": b,
-                     "displacement_noise": displacement_figure(r0.noise),
-                     "strain_noise_ue": strain_figure(r0.strain_ue), "pan_bound_figure": displacement_figure(b),
+                     "strain_window": window, "noise": r0.noise, "strain_ue": r0.strain_ue, "points": r0.points,
+                     "instrument_sigma": r0.instrument_sigma, "displacement_noise": displacement_figure(r0.noise),
+                     "strain_noise_ue": strain_figure(r0.strain_ue),
+                     "instrument_sigma_figure": displacement_figure(r0.instrument_sigma),
                      "l10_theory_px": theory_l10(dic), "vsg_px": vsg_px(dic, window), "optics": {**change, **info},
                      "note": note, "applies_to_real": False})
     return rows
@@ -420,16 +418,9 @@ def run_twin(left, right=None, static_left=None, static_right=None, *, calibrati
                                strain_window=settings.strain_window, repeats=repeats, seed=seed, progress=say)
     times["twin_static"] = time.perf_counter() - t
     base_run = pooled.runs[0]
-    twin_images = draws(scene, noise_models, inputs.bit_depth, seed, 0)
-    if inputs.stereo:
-        bound, bound_map = pan_bound_stereo(scene.rig, twin_images["left"], twin_images["right"], base_run.x_px,
-                                            base_run.y_px, base_run.right_xy_px, base_run.X_ref_mm,
-                                            dic.subset_size, noise_models)
-    else:
-        bound, bound_map = pan_bound_2d(twin_images["left"], base_run.x_px, base_run.y_px, dic.subset_size,
-                                        noise_models["left"])
     prediction = {"noise": pooled.noise, "noise_detrended": pooled.detrended, "strain_ue": pooled.strain_ue,
-                  "pan_bound": bound, "repeats": repeats, "points": base_run.points,
+                  "instrument_sigma": pooled.instrument_sigma, "instrument_sigma_source": "measurement.uncertainty",
+                  "repeats": repeats, "points": base_run.points,
                   "mm_per_px": mm_per_px, "vsg_px": vsg_px(dic, settings.strain_window),
                   "l10_theory_px": theory_l10(dic)}
     t = time.perf_counter()
@@ -454,8 +445,12 @@ def run_twin(left, right=None, static_left=None, static_right=None, *, calibrati
         comparison = {}
         for key, predicted in pooled.noise.items():
             real = measured.noise.get(key, math.nan)
+            sigma = pooled.instrument_sigma.get(key, math.nan)
+            # the measured static noise (over the points, mean removed) is what the instrument's sigma predicts
             comparison[key] = {"predicted": predicted, "measured": real,
                                "ratio": predicted / real if real else math.nan,
+                               "instrument_sigma": sigma,
+                               "instrument_ratio": sigma / real if real else math.nan,
                                "measured_detrended": measured.detrended.get(key, math.nan)}
         for key, predicted in pooled.strain_ue.items():
             real = measured.strain_ue.get(key, math.nan)
@@ -468,26 +463,23 @@ def run_twin(left, right=None, static_left=None, static_right=None, *, calibrati
     if whatif:
         max_subset = min(images["left"].shape) // 2 * 2 - 1
         for label, s, window in variants(dic, settings.strain_window, base_run.points, max_subset):
+            run = base_run
             if label.startswith("baseline"):
-                run_noise, run_strain, b = base_run.noise, base_run.strain_ue, bound
+                run_noise, run_strain = base_run.noise, base_run.strain_ue
             elif s is dic:           # a strain-only change
-                run_noise, run_strain, b = base_run.noise, strain_only(base_run, window), bound
+                run_noise, run_strain = base_run.noise, strain_only(base_run, window)
             else:
                 say(f"what-if: {label}")
                 p = twin_static_noise(scene, noise_models, inputs.bit_depth, s, roi=roi_rect, mask=mask_arr,
                                       strain_window=window, repeats=1, seed=seed)
-                r0 = p.runs[0]
-                run_noise, run_strain = r0.noise, r0.strain_ue
-                if inputs.stereo:
-                    b, _ = pan_bound_stereo(scene.rig, twin_images["left"], twin_images["right"], r0.x_px, r0.y_px,
-                                            r0.right_xy_px, r0.X_ref_mm, s.subset_size, noise_models)
-                else:
-                    b, _ = pan_bound_2d(twin_images["left"], r0.x_px, r0.y_px, s.subset_size, noise_models["left"])
+                run = p.runs[0]
+                run_noise, run_strain = run.noise, run.strain_ue
             rows.append({"label": label, "subset_px": s.subset_size, "step_px": s.step, "order": s.order,
-                         "strain_window": window, "noise": run_noise, "strain_ue": run_strain, "pan_bound": b,
-                         "displacement_noise": displacement_figure(run_noise),
+                         "strain_window": window, "noise": run_noise, "strain_ue": run_strain, "points": run.points,
+                         "instrument_sigma": run.instrument_sigma, "displacement_noise": displacement_figure(run_noise),
                          "strain_noise_ue": strain_figure(run_strain),
-                         "pan_bound_figure": displacement_figure(b), "l10_theory_px": theory_l10(s),
+                         "instrument_sigma_figure": displacement_figure(run.instrument_sigma),
+                         "l10_theory_px": theory_l10(s),
                          "vsg_px": vsg_px(s, window)})
         if lens is not None and inputs.stereo:
             rows += optics_rows(scene, lens, {"left": region, "right": right_region}, noise_models, inputs, dic,
@@ -532,7 +524,8 @@ def run_twin(left, right=None, static_left=None, static_right=None, *, calibrati
 
     for side in speckle:
         speckle[side].pop("_points", None)
-    maps = {"x_px": base_run.x_px, "y_px": base_run.y_px, "per_point": pooled.per_point, "pan_bound": bound_map,
+    maps = {"x_px": base_run.x_px, "y_px": base_run.y_px, "per_point": pooled.per_point,
+            "instrument_sigma": pooled.sigma_map,
             "measured": None if measured is None else measured.values,
             "sssig": _points_sssig(images["left"], base_run.x_px, base_run.y_px, dic.subset_size,
                                    noise_models["left"].sigma_grey)}

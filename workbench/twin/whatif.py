@@ -6,8 +6,9 @@ Rows (each against the user's baseline, on the same noise draws so that the diff
   half step only while the baseline has under :data:`MAX_POINTS_HALF_STEP` points: it quadruples them),
   strain window - 2 and + 4 grid points (a strain-only change: recomputed from the baseline's displacements);
 * each with its predicted displacement noise (µm, or px for a one-camera twin), strain noise (µε), the
-  Pan-type bound beside it, and what it costs in spatial resolution (the theoretical l10 of the subset and
-  order, and the virtual strain gauge ``(window - 1) step + subset``);
+  instrument's own predicted static sigma beside it (:mod:`measurement.uncertainty`), and what it costs in
+  spatial resolution (the theoretical l10 of the subset and order, and the virtual strain gauge
+  ``(window - 1) step + subset``);
 * ranked by the predicted change of the objective (displacement noise by default; ``strain`` ranks by the
   strain noise).
 
