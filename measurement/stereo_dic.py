@@ -334,6 +334,10 @@ class StereoShape:
     #: :mod:`measurement.uncertainty.bias`), and what it bounds in X_mm (N, 3) mm; systematic, not in the sigma.
     bias_bound_px: np.ndarray | None = field(default=None, repr=False)
     bias_bound_X_mm: np.ndarray | None = field(default=None, repr=False)
+    #: The calibration's (systematic, correlated) part of the covariance of X_mm (N, 3, 3) mm^2
+    #: (:func:`calibration_uncertainty`); None until computed, NaN for a calibration without covariance.
+    calibration_cov_X_mm2: np.ndarray | None = field(default=None, repr=False)
+    calibration_G_ref: np.ndarray | None = field(default=None, repr=False)
 
 
 @dataclass
@@ -378,6 +382,9 @@ class StereoState:
     #: Bounds on the interpolation bias of X_mm and U_mm (N, 3) mm (:mod:`measurement.uncertainty.bias`).
     bias_bound_X_mm: np.ndarray | None = field(default=None, repr=False)
     bias_bound_U_mm: np.ndarray | None = field(default=None, repr=False)
+    #: The calibration's part of the covariance of X_mm and U_mm (N, 3, 3) mm^2 (:func:`calibration_uncertainty`).
+    calibration_cov_X_mm2: np.ndarray | None = field(default=None, repr=False)
+    calibration_cov_U_mm2: np.ndarray | None = field(default=None, repr=False)
 
     @property
     def valid(self) -> np.ndarray:
@@ -572,3 +579,76 @@ def _state_uncertainty(state: StereoState, shape: StereoShape, left, right, R, T
     state.left_uncertainty, state.right_uncertainty, state.flag = lu, ru, flag
     if shape.bias_bound_px is not None:
         state.bias_bound_X_mm, state.bias_bound_U_mm = state_bias_bound_mm(G_ref, G_def, shape.bias_bound_px)
+
+
+#: Points at which :func:`calibration_uncertainty` differentiates the triangulation (the rest interpolated).
+CALIBRATION_SAMPLE_POINTS = 400
+
+
+def _sensitivity_everywhere(rig, x, y, pixels_left, pixels_right, names, max_points: int) -> np.ndarray:
+    """d X / d theta (N, 3, k) at every point: exact at up to ``max_points`` points spread over the grid, linearly
+    interpolated over the left image between them (the calibration's effect varies smoothly over the field)."""
+    from scipy.interpolate import LinearNDInterpolator, NearestNDInterpolator
+
+    from measurement.uncertainty.calibration import calibration_sensitivity
+
+    ok = np.all(np.isfinite(pixels_left), axis=1) & np.all(np.isfinite(pixels_right), axis=1)
+    idx = np.flatnonzero(ok)
+    out = np.full((x.size, 3, len(names)), np.nan)
+    if idx.size == 0:
+        return out
+    sample = idx if idx.size <= max_points else idx[np.linspace(0, idx.size - 1, max_points).round().astype(int)]
+    G = calibration_sensitivity(rig, pixels_left[sample], pixels_right[sample], names)
+    good = np.all(np.isfinite(G.reshape(len(sample), -1)), axis=1)
+    sample, G = sample[good], G[good]
+    if sample.size < 4:
+        out[sample] = G
+        return out
+    xy = np.column_stack([x[sample], y[sample]]).astype(np.float64)
+    flat = G.reshape(len(sample), -1)
+    query = np.column_stack([x[idx], y[idx]]).astype(np.float64)
+    values = LinearNDInterpolator(xy, flat)(query)
+    outside = ~np.all(np.isfinite(values), axis=1)
+    if outside.any():
+        values[outside] = NearestNDInterpolator(xy, flat)(query[outside])
+    out[idx] = values.reshape(idx.size, 3, len(names))
+    return out
+
+
+def calibration_uncertainty(shape: StereoShape, state: StereoState | None, rig, *,
+                            max_points: int = CALIBRATION_SAMPLE_POINTS) -> None:
+    """Fill the calibration's part of the covariance (:mod:`measurement.uncertainty.calibration`): of the shape's
+    X (``state=None``) or of a state's X and U (``G_U = G_def - G_ref``: the same calibration error acts on both
+    states). ``rig``: a CalibratedRig or StereoCalibration; without a covariance every value is NaN (and a warning
+    says the calibration part is unknown, once).
+    """
+    from measurement.uncertainty.calibration import rig_covariance
+
+    cov, names = rig_covariance(rig)
+    n = shape.x.size
+    if cov is None:
+        nan = np.full((n, 3, 3), np.nan)
+        if state is None:
+            shape.calibration_cov_X_mm2 = nan
+        else:
+            state.calibration_cov_X_mm2, state.calibration_cov_U_mm2 = nan, nan.copy()
+        return
+    x, y = shape.x.astype(np.float64), shape.y.astype(np.float64)
+    base = np.column_stack([x, y])
+    rm = shape.right_match
+    if shape.calibration_G_ref is None:
+        shape.calibration_G_ref = _sensitivity_everywhere(rig, x, y, base, base + np.column_stack([rm.u, rm.v]),
+                                                          names, max_points)
+    G_ref = shape.calibration_G_ref
+
+    def propagate(G):
+        return np.einsum("nik,kl,njl->nij", G, cov, G)
+
+    if state is None:
+        shape.calibration_cov_X_mm2 = propagate(G_ref)
+        return
+    lm, rmd = state.left_match, state.right_match
+    G_def = _sensitivity_everywhere(rig, x, y, base + np.column_stack([lm.u, lm.v]),
+                                    base + np.column_stack([rmd.u, rmd.v]), names, max_points)
+    state.calibration_cov_X_mm2 = propagate(G_def)
+    state.calibration_cov_U_mm2 = propagate(G_def - G_ref)

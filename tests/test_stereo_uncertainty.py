@@ -197,7 +197,11 @@ def test_stereo_command_measures_the_noise_on_a_static_pair(draws, tmp_path, cap
     from measurement.calibration.io import CalibratedRig, save_rig
     from workbench.cli import main
 
-    rig = CalibratedRig("rmm", RIG.left, RIG.right, RIG.R_right_from_left, RIG.T_right_from_left_mm)
+    names = tuple(f"{side}.{n}" for side in ("left", "right") for n in ("fx", "fy", "cx", "cy")) + (
+        "stereo.T_x_mm", "stereo.T_y_mm", "stereo.T_z_mm")
+    cov = np.diag([0.5, 0.5, 0.3, 0.3] * 2 + [0.01] * 3) ** 2       # a calibration's covariance, written in the JSON
+    rig = CalibratedRig("rmm", RIG.left, RIG.right, RIG.R_right_from_left, RIG.T_right_from_left_mm,
+                        covariance=cov, covariance_names=names)
     save_rig(rig, tmp_path / "rig.json")
     for name, image in {**_IMAGES[0], "static_left": _IMAGES[1]["left_ref"],
                         "static_right": _IMAGES[1]["right_ref"]}.items():
@@ -218,6 +222,8 @@ def test_stereo_command_measures_the_noise_on_a_static_pair(draws, tmp_path, cap
         rows = list(csv.DictReader(handle))
     sigma_w = np.array([float(r["sigma_W_um"]) for r in rows if r["status_name"] == "converged"])
     assert sigma_w.size > 100 and np.all(np.isfinite(sigma_w)) and np.all(sigma_w > 0)
+    calib_w = np.array([float(r["sigma_W_calib_um"]) for r in rows if r["status_name"] == "converged"])
+    assert np.all(np.isfinite(calib_w)) and np.all(calib_w > 0)
     # a "static" right image that is in fact another camera position: refused, naming the pair
     moved = np.roll(_IMAGES[1]["right_ref"], 1, axis=1)
     atomic_write_image(tmp_path / "moved_right.png", moved)

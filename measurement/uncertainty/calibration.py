@@ -368,3 +368,9 @@ def common_mode_summary(rig, ref_left_px, ref_right_px, def_left_px=None, def_ri
     else:
         sigma_scale = float("nan")
     return CommonModeSummary(field, int(ok.sum()), sigma_mean, rms_sigma, common, sigma_scale)
+
+
+def rig_covariance(rig) -> tuple[np.ndarray | None, tuple[str, ...]]:
+    """The rig's (k, k) calibration covariance and its parameter names, or ``(None, ())`` -- with the warning,
+    once per process -- when it has none (the calibration part is then unknown, never zero)."""
+    return _covariance(rig)

@@ -241,6 +241,33 @@ def _hessians(image, grad_x, grad_y, weighted_gx, weighted_gy, xs, ys, half, ord
         ok_out[k] = True
 
 
+#: Least fraction of a subset's gradient information (along its worst shape-parameter direction) that must be
+#: texture rather than noise for its sigma to be given (below it: FLAG_SINGULAR, NaN).
+MIN_SIGNAL_FRACTION = 0.5
+
+
+def _signal_fraction(h: np.ndarray, h0: np.ndarray) -> np.ndarray:
+    """Smallest eigenvalue of ``H^-1/2 H0 H^-1/2`` per subset (N,): the signal's share of the worst direction."""
+    d = 1.0 / np.sqrt(np.abs(np.einsum("kii->ki", h)))
+    hs = h * d[:, :, None] * d[:, None, :]
+    h0s = h0 * d[:, :, None] * d[:, None, :]
+    out = np.zeros(h.shape[0])
+    idx = np.flatnonzero(np.all(np.isfinite(hs), axis=(1, 2)) & np.all(np.isfinite(h0s), axis=(1, 2)))
+    try:
+        L = np.linalg.cholesky(hs[idx])
+    except np.linalg.LinAlgError:           # one not positive definite: one by one, that one scores 0
+        for k in idx:
+            try:
+                Li = np.linalg.inv(np.linalg.cholesky(hs[k]))
+            except np.linalg.LinAlgError:
+                continue
+            out[k] = np.linalg.eigvalsh(Li @ h0s[k] @ Li.T)[0]
+        return out
+    Li = np.linalg.inv(L)
+    out[idx] = np.linalg.eigvalsh(Li @ h0s[idx] @ np.swapaxes(Li, 1, 2))[:, 0]
+    return out
+
+
 def _scaled_inverse(m: np.ndarray) -> np.ndarray:
     """Inverse of a batch (N, n, n) of SPD matrices with Jacobi scaling (their entries span ~10^6)."""
     d = 1.0 / np.sqrt(np.abs(np.einsum("kii->ki", m)))
@@ -358,9 +385,11 @@ def reference_subsets(reference, x_px, y_px, subset_size: int, order: int, noise
         correction[:nm, :nm] = moments
         correction[nm:, nm:] = moments
         h0 = h - gradient_noise_gain(degree) * mean_var[idx, None, None] * correction
-        # A subset whose texture is buried in noise has H0 near singular: its sigma is not defined.
-        d = 1.0 / np.sqrt(np.einsum("kii->ki", h))
-        eig_ok = np.all(np.linalg.eigvalsh(h0 * d[:, :, None] * d[:, None, :]) > 1e-6, axis=1)
+        # Where the noise makes up much of the gradient energy along some shape parameter (texture buried in noise,
+        # an edge subset), H0 = H - noise is a small difference of large numbers and its inverse, hence the sigma,
+        # is not reliable: the fraction of each direction's information that is signal -- the eigenvalues of
+        # H^-1/2 H0 H^-1/2, in (0, 1] -- must be at least MIN_SIGNAL_FRACTION, else the point has no sigma.
+        eig_ok = _signal_fraction(h, h0) >= MIN_SIGNAL_FRACTION
         good = idx[eig_ok]
         inv0 = _scaled_inverse(h0[eig_ok])
         cov = inv0 @ hw[eig_ok] @ inv0

@@ -140,6 +140,9 @@ def stereo_command(args) -> int:
             raise ValueError(f"{what}: {err}") from None
         noise = static_pair_noise_stereo(shape, repeat, left_ref, right_ref, *static)
         shape_uncertainty(shape, rig.left, rig.right, rig.R_right_from_left, rig.T_right_from_left_mm, settings, noise)
+    from measurement.stereo_dic import calibration_uncertainty
+
+    calibration_uncertainty(shape, None, rig)       # NaN, with a warning, for a calibration without covariance
     prepare_folder(args.out, "stereo", planned, overwrite=args.overwrite)
     written = [write_state_csv(args.out / "reference.csv", shape).name,
                write_state_vtk(args.out / "reference.vtk", shape).name]
@@ -175,6 +178,7 @@ def stereo_command(args) -> int:
             rows.append({"state": names[i], "left": fl, "right": fr, "quality": getattr(err, "quality", None),
                          "error": message})
             continue
+        calibration_uncertainty(shape, state, rig)
         written += [write_state_csv(args.out / f"{names[i]}.csv", shape, state).name,
                     write_state_vtk(args.out / f"{names[i]}.vtk", shape, state).name]
         images.append(_image_record(k, f"{names[i]}.csv", fl, fr, left_def, right_def))
