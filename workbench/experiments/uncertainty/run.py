@@ -157,7 +157,7 @@ def report_text(results: list[dict], figures: dict, run_info: dict, real: list[d
                   "run.*", ""]
     header = ["| class | comp. | std(z) | 68 % | 95 % | decile worst | flagged | noise est. / true (grey) | median sigma "
               "| total RMSE | bias RMS | goals |", "|---|---|---|---|---|---|---|---|---|---|---|---|"]
-    for kind, title in (("planar", "Planar classes (2-D DIC, px)"), ("stereo", "Stereo classes (µm)")):
+    for kind, title in (("planar", "Planar classes (2-D DIC, px)"), ("stereo", "Stereo classes (µm; strain in µε)")):
         rows = [r for r in results if r["kind"] == kind]
         if not rows:
             continue

@@ -18,6 +18,8 @@ import numpy as np
 
 from .coverage import coverage_figures, random_deviation, verdict
 
+#: Strain window (grid points per side, first-order fit) of the strain classes.
+STRAIN_WINDOW = 9
 #: The catalog specimens measured, and the class their load steps form.
 SPECIMENS = {"beam": "bending (beam)", "plate_with_hole": "plate with a hole", "notched_coupon": "notched coupon"}
 
@@ -38,7 +40,9 @@ def measure_draws(name: str, out_dir: Path, *, scale: float, draws: int, subset_
     """Every draw of one catalog specimen measured: per state the displacements, their sigma and flags.
 
     Returns ``{"labels", "X" (D, N, 3), "sigma_X" (D, N, 3), "U" (D, S, N, 3), "sigma_U", "flag" (D, S, N),
-    "U_true" (S, N, 3), "noise_grey" (D,)}`` with S the deformed states; NaN where a draw did not measure a point.
+    "E" (D, S, N, 3), "sigma_E" (D, S, N, 3), "U_true" (S, N, 3), "noise_grey" (D,)}`` with S the deformed states
+    (E: E11, E22, E12 of a 9-point strain window, first order, in the left camera frame); NaN where a draw did not
+    measure a point.
     """
     from measurement.calibration.io import CalibratedRig
     from measurement.dic import DICSettings
@@ -63,7 +67,11 @@ def measure_draws(name: str, out_dir: Path, *, scale: float, draws: int, subset_
     rig = CalibratedRig("rmm", true.left, true.right, true.R_right_from_left, true.T_right_from_left_mm)
     cams = (rig.left, rig.right, rig.R_right_from_left, rig.T_right_from_left_mm)
     settings = DICSettings(subset_size=subset_px, step=step_px, order=2)
-    X, sX, U, sU, flags, noise = [], [], [], [], [], []
+    from measurement.strain import surface_strain
+    from measurement.uncertainty.stereo import triangulation_sensitivity
+    from measurement.uncertainty.strain import pair_covariances, state_strain_sigma
+
+    X, sX, U, sU, flags, noise, E, sE = [], [], [], [], [], [], [], []
     labels = U_true = None
     for d in range(draws):
         images, truth = _draw(scenario, d, store, progress)
@@ -78,7 +86,17 @@ def measure_draws(name: str, out_dir: Path, *, scale: float, draws: int, subset_
         X.append(np.where(shape.valid[:, None], shape.X_mm, np.nan))
         sX.append(sigmas(shape.cov_X_mm2))
         noise.append(shape.noise["left"].sigma_grey)
-        u_states, s_states, f_states = [], [], []
+        grid = shape.grid
+        pairs = pair_covariances(shape.reference, shape.subsets, shape.right_match.grid_index, grid.shape, grid.step,
+                                 window=STRAIN_WINDOW)
+        G_ref = triangulation_sensitivity(*cams, shape.X_mm)
+
+        def on_grid(v):
+            out = np.full(grid.shape + (3,), np.nan)
+            out[grid.active] = v
+            return out
+
+        u_states, s_states, f_states, e_states, se_states = [], [], [], [], []
         for k in range(1, len(truth.files)):
             try:
                 state = measure_state(*cams, shape, left_ref, read_grey(images / truth.files[k]["left"]),
@@ -86,36 +104,47 @@ def measure_draws(name: str, out_dir: Path, *, scale: float, draws: int, subset_
                 u_states.append(np.where(state.valid[:, None], state.U_mm, np.nan))
                 s_states.append(sigmas(state.cov_U_mm2))
                 f_states.append(state.flag.astype(np.int8))
+                ok = state.valid & shape.valid
+                strain = surface_strain(on_grid(np.where(ok[:, None], shape.X_mm, np.nan)),
+                                        on_grid(np.where(ok[:, None], state.X_mm, np.nan)), window=STRAIN_WINDOW)
+                G_def = triangulation_sensitivity(*cams, state.X_mm)
+                e_states.append(np.stack([strain.E11, strain.E22, strain.E12], -1)[grid.active])
+                se_states.append(state_strain_sigma(shape, state, strain, G_ref, G_def, pairs)[grid.active])
             except StereoMatchError:
-                u_states.append(np.full((n, 3), np.nan))
-                s_states.append(np.full((n, 3), np.nan))
+                for a in (u_states, s_states, e_states, se_states):
+                    a.append(np.full((n, 3), np.nan))
                 f_states.append(np.zeros(n, np.int8))
         U.append(u_states)
         sU.append(s_states)
         flags.append(f_states)
+        E.append(e_states)
+        sE.append(se_states)
     return {"labels": labels, "X": np.array(X), "sigma_X": np.array(sX), "U": np.array(U), "sigma_U": np.array(sU),
-            "flag": np.array(flags), "U_true": U_true, "noise_grey": np.array(noise)}
+            "flag": np.array(flags), "E": np.array(E), "sigma_E": np.array(sE), "U_true": U_true,
+            "noise_grey": np.array(noise)}
 
 
 def _class_figures(name: str, values: np.ndarray, sigma: np.ndarray, flags: np.ndarray, truth: np.ndarray | None,
-                   names: tuple[str, ...], noise_grey: float, settings: dict) -> dict:
-    """Coverage figures of one class. ``values``/``sigma`` (D, N, 3) mm, ``flags`` (D, N), ``truth`` (N, 3) mm."""
+                   names: tuple[str, ...], noise_grey: float, settings: dict, *, scale: float = 1e3,
+                   unit: str = "µm") -> dict:
+    """Coverage figures of one class. ``values``/``sigma`` (D, N, 3) mm (or strain), ``flags`` (D, N), ``truth``
+    (N, 3); reported in ``unit`` after multiplying by ``scale``."""
     measured = np.all(np.isfinite(values[..., 0]), axis=0)
     trusted = np.all(flags == 0, axis=0)
     flagged_fraction = float(np.count_nonzero(measured & ~trusted) / max(1, measured.sum()))
     keep = measured & trusted
-    deviation = random_deviation(values[:, keep]) * 1e3
-    s = sigma[:, keep] * 1e3
+    deviation = random_deviation(values[:, keep]) * scale
+    s = sigma[:, keep] * scale
     figures = coverage_figures(deviation, s, names)
     out = {"class": name, "kind": "stereo", "settings": settings, "components": figures,
            "flagged_fraction": flagged_fraction,
-           "median_sigma": [float(np.nanmedian(s[..., c])) for c in range(3)], "unit": "µm",
+           "median_sigma": [float(np.nanmedian(s[..., c])) for c in range(3)], "unit": unit,
            "noise_grey": noise_grey, "noise_true_grey": float(math.hypot(1.0, 12 ** -0.5)),
            "verdict": verdict(figures, flagged_fraction)}
     z = (deviation / s).reshape(-1, 3)
     out["z"] = z[np.all(np.isfinite(z), axis=1)]
     if truth is not None:
-        error = (values[:, keep] - truth[keep]) * 1e3
+        error = (values[:, keep] - truth[keep]) * scale
         bias = np.nanmean(error, axis=0)
         out["total_rmse"] = [float(np.sqrt(np.nanmean(error[..., c] ** 2))) for c in range(3)]
         out["bias_rms"] = [float(np.sqrt(np.nanmean(bias[:, c] ** 2))) for c in range(3)]
@@ -144,6 +173,10 @@ def run_stereo_classes(out_dir: Path, *, scale: float = 0.25, draws: int = 6, su
         classes.append(_class_figures(SPECIMENS[name], pool(steps, "U"), pool(steps, "sigma_U"), pool(steps, "flag"),
                                       m["U_true"][steps].reshape(-1, 3), ("U", "V", "W"), noise[-1],
                                       settings | {"specimen": name, "states": [m["labels"][i] for i in steps]}))
+        classes.append(_class_figures(f"{SPECIMENS[name]}: strain", pool(steps, "E"), pool(steps, "sigma_E"),
+                                      pool(steps, "flag"), None, ("E11", "E22", "E12"), noise[-1],
+                                      settings | {"specimen": name, "strain_window": STRAIN_WINDOW},
+                                      scale=1e6, unit="µε"))
         rigid_v.append(pool(others, "U"))
         rigid_s.append(pool(others, "sigma_U"))
         rigid_f.append(pool(others, "flag"))
