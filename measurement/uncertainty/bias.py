@@ -602,7 +602,7 @@ def bias_bound_px(reference_image, x_px, y_px, subset_size, interpolation="biqui
     Returns
     -------
     ndarray of float64, shape (N, 2)
-        Bound on |bias of u| and |bias of v|, px; NaN where :func:`bias_curves_px` is NaN.
+        Bound on the absolute bias of u and of v, px; NaN where :func:`bias_curves_px` is NaN.
     """
     if not (np.isfinite(relative_margin) and relative_margin >= 0):
         raise ValueError(f"relative_margin must be a finite number >= 0, got {relative_margin!r}")
