@@ -177,6 +177,12 @@ def reproduce_bending(out_dir: str | Path, *, scale: float = 1.0, rig_name: str 
     peak_load = float(loads.max())
 
     vsg = virtual_strain_gauge_px(window if window is not None else 2, step, subset_size)
+    pairs = None
+    if window is not None and shape.subsets is not None:
+        from measurement.uncertainty.strain import pair_covariances
+
+        pairs = pair_covariances(shape.reference, shape.subsets, shape.right_match.grid_index, grid.shape, grid.step,
+                                 window=window)
     rows, maps = [], {}
     for k in tqdm(range(1, len(loads)), desc="stereo-DIC + strain per load", disable=not progress):
         load = float(loads[k])
@@ -232,8 +238,17 @@ def reproduce_bending(out_dir: str | Path, *, scale: float = 1.0, rig_name: str 
         na_meas = _neutral_axis_mm(np.where(valid_g, strain.E11, np.nan), y_spec_grid, x_spec_grid)
         na_true = _neutral_axis_mm(np.where(np.isfinite(E_exact_g[..., 0, 0]), E_exact_g[..., 0, 0], np.nan),
                                    y_spec_grid, x_spec_grid)
+        sigma_E = None
+        if pairs is not None and state.cov_U_mm2 is not None:
+            from measurement.uncertainty.stereo import triangulation_sensitivity
+            from measurement.uncertainty.strain import state_strain_sigma
+
+            cams = (rig.left, rig.right, rig.R_right_from_left, rig.T_right_from_left_mm)
+            sigma_E = state_strain_sigma(shape, state, strain, triangulation_sensitivity(*cams, shape.X_mm),
+                                         triangulation_sensitivity(*cams, state.X_mm), pairs, X_ref_mm=X_ref_aligned,
+                                         rotation=R_al)
         _write_strain_csv(points_dir / f"strain_{k:02d}.csv", grid, strain, E_exact_g, grid_values(mag_exact, grid),
-                          grid_values(area_exact, grid), E_filt, filtered, valid_g)
+                          grid_values(area_exact, grid), E_filt, filtered, valid_g, sigma_E)
         row = {"state": k, "load_N": load, "points": int(ok.sum()), "points_total": int(ok.size),
                "stereo_s": round(stereo_s, 2), "strain_s": round(strain_s, 3),
                "median_residual_px": float(np.nanmedian(state.residual_px[ok])),
@@ -336,7 +351,9 @@ _OTHER_FILES = {
                      "the node's local surface frame (e1, e2), principal `E1 E2`, `magnitude`, `area_change`; the exact "
                      "FE strain in the same frame (`E11_exact E22_exact E12_exact`, `magnitude_exact`, "
                      "`area_change_exact`); the exact motion through the same strain window (`*_filtered`: the "
-                     "truth the report's strain RMSE is measured against); `scored` = 1 where the node counts",
+                     "truth the report's strain RMSE is measured against); `scored` = 1 where the node counts; "
+                     "`sigma_E11_ue sigma_E22_ue sigma_E12_ue`: the instrument's random uncertainty of the measured "
+                     "strain (µε, strain window only)",
 }
 
 
@@ -350,15 +367,17 @@ def _deformation_columns(measured_mm: np.ndarray, true_mm: np.ndarray) -> dict[s
 
 
 def _write_strain_csv(path: Path, grid, strain, E_exact, magnitude_exact, area_exact, E_filtered, filtered,
-                      scored) -> None:
+                      scored, sigma=None) -> None:
     """Per-node strain: grid position, left-image pixel, measured E11 E22 E12, E1 E2, magnitude, area change; the
-    exact strain in the same local frame and the exact motion through the same window; the scored mask."""
+    exact strain in the same local frame and the exact motion through the same window; the scored mask; the
+    strain's random uncertainty ``sigma_E11_ue`` ... (µε; NaN for the triangle method, which has no window fit)."""
+    sigma = np.full(grid.shape + (3,), np.nan) if sigma is None else sigma
     with atomic_writer(path, "w", newline="") as handle:
         w = csv.writer(handle)
         w.writerow(["row", "col", "x", "y", "E11", "E22", "E12", "E1", "E2", "magnitude", "area_change",
                     "E11_exact", "E22_exact", "E12_exact", "magnitude_exact", "area_change_exact",
                     "E11_filtered", "E22_filtered", "E12_filtered", "magnitude_filtered", "area_change_filtered",
-                    "scored"])
+                    "scored", "sigma_E11_ue", "sigma_E22_ue", "sigma_E12_ue"])
         for i in range(grid.shape[0]):
             for j in range(grid.shape[1]):
                 w.writerow([i, j, int(grid.x[i, j]), int(grid.y[i, j])]
@@ -369,4 +388,4 @@ def _write_strain_csv(path: Path, grid, strain, E_exact, magnitude_exact, area_e
                                                    E_filtered[i, j, 0, 0], E_filtered[i, j, 1, 1],
                                                    E_filtered[i, j, 0, 1], filtered.magnitude[i, j],
                                                    filtered.area_change[i, j])]
-                           + [int(bool(scored[i, j]))])
+                           + [int(bool(scored[i, j]))] + [f"{1e6 * v:.6g}" for v in sigma[i, j]])
