@@ -318,3 +318,32 @@ def test_exported_calibration_loads_back_and_its_reported_cost_is_true(rigid, tm
             assert cam["max_px"] > 0.01
             assert d.max() <= cam["max_px"] * (1 + 1e-6) + 1e-9      # the report's grid includes the corners
             assert d.max() >= 0.5 * cam["max_px"] and d.mean() == pytest.approx(cam["mean_px"], rel=0.25)
+
+
+def test_a_results_own_sigma_is_scored_by_its_coverage(rigid, tmp_path):
+    """A native result with sigma columns: truth + Gaussian noise of 2 µm (seeded) claiming sigma 2 µm covers
+    95 % +- 2.5 % of its errors within 1.96 sigma (RMS z ~ 1); claiming 1 µm covers far fewer."""
+    from workbench.scoring.export import export_dataset
+
+    export_dataset(rigid, "native", tmp_path / "export", log=lambda *_: None)
+    with open(tmp_path / "export" / "truth" / "points.csv") as f:
+        rows = [r for r in csv.DictReader(f) if r["state"] == "1" and r["valid"] == "1"]
+    x = np.array([float(r["x_px"]) for r in rows])
+    y = np.array([float(r["y_px"]) for r in rows])
+    X = np.array([[float(r[k]) for k in ("X_mm", "Y_mm", "Z_mm")] for r in rows])
+    U = np.array([[float(r[k]) for k in ("U_mm", "V_mm", "W_mm")] for r in rows])
+    noise = np.random.default_rng(7).normal(0.0, 2e-3, U.shape)
+    for claim_um, name in ((2.0, "honest_01.csv"), (1.0, "overconfident_01.csv")):
+        with open(tmp_path / name, "w") as f:
+            f.write("x,y,X,Y,Z,U,V,W,D,zncc,residual,status,status_name,sigma_U_um,sigma_V_um,sigma_W_um,"
+                    "sigma_U_calib_um,sigma_V_calib_um,sigma_W_calib_um\n")
+            for i in range(x.size):
+                Ui = U[i] + noise[i]
+                f.write(",".join(map(str, [x[i], y[i], *(X[i] + noise[i]), *Ui, np.linalg.norm(Ui), 1, 0, 0,
+                                           "converged", claim_um, claim_um, claim_um, "nan", "nan", "nan"])) + "\n")
+    honest = score_state(rigid, 1, read_result(tmp_path / "honest_01.csv")).metrics
+    over = score_state(rigid, 1, read_result(tmp_path / "overconfident_01.csv")).metrics
+    for c in "UVW":
+        assert abs(honest[f"sigma_coverage_95_{c}"] - 0.95) < 0.025 + 2 * np.sqrt(0.05 * 0.95 / x.size), honest
+        assert abs(honest[f"sigma_rms_z_{c}"] - 1.0) < 0.1
+        assert over[f"sigma_coverage_95_{c}"] < 0.8

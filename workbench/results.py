@@ -57,6 +57,9 @@ class ToolResult:
     frame : str, the frame of X_mm / U_mm as the tool states it (``"left camera"`` for ours and DICe's default)
     strain : (N, 3) float or None, 2-D Green-Lagrange strain (exx, eyy, exy: tensor shear, not engineering) in
         the left image's pixel axes
+    sigma_uv_px : (N, 2) float or None, the tool's own standard uncertainty of u, v
+    sigma_U_mm : (N, 3) float or None, the tool's own standard uncertainty of U, V, W (this project's: the random
+        and, where known, the calibration part in quadrature)
     """
 
     source: Path
@@ -70,6 +73,8 @@ class ToolResult:
     U_mm: np.ndarray | None = None
     frame: str = "left camera"
     strain: np.ndarray | None = None
+    sigma_uv_px: np.ndarray | None = None
+    sigma_U_mm: np.ndarray | None = None
 
     @property
     def has_2d(self) -> bool:
@@ -129,12 +134,20 @@ def read_native(path: Path) -> ToolResult:
         valid = np.all(np.isfinite(U), axis=1)
         if names is not None:
             valid &= np.array([n == "converged" for n in names])
-        return ToolResult(path, "scheimpflug-dic-workbench", x, y, valid, X_mm=X, U_mm=U)
+        sigma = None
+        if "sigma_U_um" in header:
+            sigma = np.column_stack([col(f"sigma_{c}_um") for c in "UVW"])
+            if "sigma_U_calib_um" in header:
+                calib = np.column_stack([col(f"sigma_{c}_calib_um") for c in "UVW"])
+                sigma = np.sqrt(sigma ** 2 + np.where(np.isfinite(calib), calib, 0.0) ** 2)
+            sigma = sigma * 1e-3
+        return ToolResult(path, "scheimpflug-dic-workbench", x, y, valid, X_mm=X, U_mm=U, sigma_U_mm=sigma)
     u, v = col("u"), col("v")
     valid = np.isfinite(u) & np.isfinite(v)
     if names is not None:
         valid &= np.array([n == "converged" for n in names])
-    return ToolResult(path, "scheimpflug-dic-workbench", x, y, valid, u, v)
+    sigma = np.column_stack([col("sigma_u_px"), col("sigma_v_px")]) if "sigma_u_px" in header else None
+    return ToolResult(path, "scheimpflug-dic-workbench", x, y, valid, u, v, sigma_uv_px=sigma)
 
 
 def read_dice(path: Path) -> ToolResult:

@@ -109,6 +109,8 @@ def score_state(dataset: Dataset, state: int, result: ToolResult, align: str = "
         e2 = np.column_stack([result.u_px, result.v_px]) - truth.uv_left_px[state]
         e2[~scored] = np.nan
         metrics.update(_summary(e2, "", "px", "uv"))
+        if result.sigma_uv_px is not None:
+            metrics.update(_sigma_coverage(e2, result.sigma_uv_px, "uv"))
     if result.strain is not None:
         es = 1e6 * (result.strain - truth_strain_2d(dataset, state, result.x_px, result.y_px))
         es[~scored] = np.nan
@@ -132,6 +134,8 @@ def score_state(dataset: Dataset, state: int, result: ToolResult, align: str = "
         e3 = 1e3 * (U - truth.displacement_left_mm[state])
         e3[~scored] = np.nan
         metrics.update(_summary(e3, "", "um", "UVW"))
+        if result.sigma_U_mm is not None and align == "none":
+            metrics.update(_sigma_coverage(e3, 1e3 * result.sigma_U_mm, "UVW"))
         if align == "none" and result.X_mm is not None:
             hint = _frame_hint(result, truth, state, scored, metrics["rms_um"])
             if hint:
@@ -141,6 +145,19 @@ def score_state(dataset: Dataset, state: int, result: ToolResult, align: str = "
             ep[~scored] = np.nan
             metrics.update(_summary(ep, "position_", "um", "XYZ"))
     return StateScore(state, dataset.labels[state], result.x_px, result.y_px, e2, e3, metrics)
+
+
+def _sigma_coverage(error: np.ndarray, sigma: np.ndarray, names) -> dict:
+    """How the tool's own sigma covers its error against the truth: per component RMS(error / sigma) and the
+    fraction inside +-1.96 sigma (``sigma_rms_z_<c>``, ``sigma_coverage_95_<c>``), over the scored points with a
+    sigma. The error here is the *total* error (bias and calibration included), the sigma what the tool claims."""
+    out = {}
+    for k, c in enumerate(names):
+        ok = np.isfinite(error[:, k]) & np.isfinite(sigma[:, k]) & (sigma[:, k] > 0)
+        z = error[ok, k] / sigma[ok, k]
+        out[f"sigma_rms_z_{c}"] = float(np.sqrt(np.mean(z ** 2))) if z.size else float("nan")
+        out[f"sigma_coverage_95_{c}"] = float(np.mean(np.abs(z) < 1.959964)) if z.size else float("nan")
+    return out
 
 
 def _frame_hint(result: ToolResult, truth, state: int, scored: np.ndarray, rms_um: float) -> str | None:
@@ -205,14 +222,18 @@ def write_score_report(out: Path, dataset: Dataset, scores: list[StateScore], to
            "notes": notes or [], "states": [s.metrics for s in scores]}
     atomic_write_text(out / "metrics.json", json.dumps(doc, indent=1))
     keys = [k for k in ("not_measured_points", "valid_fraction", "bias_u_px", "bias_v_px", "std_u_px", "std_v_px", "rms_px", "max_px",
-                        "bias_U_um", "bias_V_um", "bias_W_um", "rms_um", "max_um", "position_rms_um")
+                        "bias_U_um", "bias_V_um", "bias_W_um", "rms_um", "max_um", "position_rms_um",
+                        "sigma_coverage_95_u", "sigma_coverage_95_v", "sigma_coverage_95_U", "sigma_coverage_95_V",
+                        "sigma_coverage_95_W")
             if any(k in s.metrics for s in scores)]
     fmt = lambda v: f"{v:.4g}" if isinstance(v, float) else str(v)  # noqa: E731
     lines = [f"# {tool} scored against the truth of `{dataset.folder.name}` ({dataset.kind})", "",
              f"Result files: {', '.join(f'`{s}`' for s in sources)}.", "",
              "Truth evaluated exactly at each reported reference position; px as OpenCV (integer pixel centres); "
              "3-D errors in the left camera frame, µm. Points the tool reports as NaN or failed on the specimen "
-             "are not measured (`not_measured_points`), left out of the errors and counted in `valid_fraction`.", "",
+             "are not measured (`not_measured_points`), left out of the errors and counted in `valid_fraction`. "
+             "Where the result carries its own per-point sigma, `sigma_coverage_95_*` is the fraction of its errors "
+             "inside +-1.96 sigma (the total error: a bias the sigma does not claim to cover lowers it).", "",
              "| state | label | points | " + " | ".join(keys) + " |", "|" + "---|" * (3 + len(keys))]
     for s in scores:
         lines.append(f"| {s.state} | {s.label} | {s.metrics['valid_points']}/{s.metrics['truth_points']} | "
