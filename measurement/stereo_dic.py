@@ -33,7 +33,7 @@ from measurement.dic.initial import translation_parameters
 from measurement.dic.roi import AutoRoi, AutoRoiReport, expand_result, flag_inconsistent, texture_grid
 from measurement.speckle_quality import NoiseModel
 from measurement.stereo import triangulate
-from measurement.uncertainty.match import (FLAG_NONE, FLAG_RESIDUAL, MatchUncertainty, ReferenceSubsets,
+from measurement.uncertainty.match import (FLAG_NONE, FLAG_RESIDUAL, FLAG_SATURATED, MatchUncertainty, ReferenceSubsets,
                                            interpolation_noise_gain, match_uncertainty, noise_from_residuals,
                                            reference_subsets)
 from measurement.uncertainty.bias import bias_bound_px
@@ -573,8 +573,8 @@ def _state_uncertainty(state: StereoState, shape: StereoShape, left, right, R, T
                                          lu.cov_target_px2, ru.cov_target_px2)
     flag = np.full(state.X_mm.shape[0], FLAG_NONE, dtype=np.int8)
     for unc in (ru, lu, su):
-        hit = (flag == FLAG_NONE) & (unc.flag == FLAG_RESIDUAL)
-        flag[hit] = FLAG_RESIDUAL
+        hit = (flag == FLAG_NONE) & ((unc.flag == FLAG_RESIDUAL) | (unc.flag == FLAG_SATURATED))
+        flag[hit] = unc.flag[hit]
     state.cov_X_mm2, state.cov_U_mm2 = cov_X, cov_U
     state.left_uncertainty, state.right_uncertainty, state.flag = lu, ru, flag
     if shape.bias_bound_px is not None:

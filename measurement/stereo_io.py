@@ -16,7 +16,7 @@ from measurement.stereo_dic import StereoShape, StereoState
 #: Random uncertainty (standard, 1 sigma) of X, Y, Z and U, V, W, µm; the calibration's (systematic, correlated over
 #: all points) part of the same; ``bias_bound_*``: a bound on the interpolation bias (systematic, per point, not in
 #: the sigma, :mod:`measurement.uncertainty.bias`); ``sigma_flag``: 0 trusted, 1 the match residual exceeds what the noise explains,
-#: 2 no match, 3 no sigma (singular subset) -- :mod:`measurement.uncertainty`.
+#: 2 no match, 3 no sigma (texture too weak), 4 no sigma (saturated subset) -- :mod:`measurement.uncertainty`.
 SIGMA_COLUMNS = ("sigma_X_um", "sigma_Y_um", "sigma_Z_um", "sigma_U_um", "sigma_V_um", "sigma_W_um",
                  "sigma_X_calib_um", "sigma_Y_calib_um", "sigma_Z_calib_um",
                  "sigma_U_calib_um", "sigma_V_calib_um", "sigma_W_calib_um",

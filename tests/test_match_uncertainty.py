@@ -148,3 +148,25 @@ def test_static_repeat_covariance_px2_refuses_another_shape():
 
     with pytest.raises(ValueError, match=r"cov_reference_px2 must have shape \(N, 2, 2\), got \(4, 3, 3\)"):
         static_repeat_covariance_px2(np.zeros((4, 3, 3)))
+
+
+def test_a_saturated_region_gets_no_sigma_and_says_why():
+    """Pixels clipped at the sensor's ceiling carry no noise and no gradient: subsets more than 2 % clipped get
+    NaN sigma and the 'saturated' flag; subsets without a clipped pixel keep theirs."""
+    from measurement.uncertainty.match import FLAG_SATURATED
+
+    reference, moved = fourier_shifted_pair((200, 200), 4.0, SHIFT, seed=1, mean_grey=160.0, std_grey=25)
+    ref = apply_sensor_noise(reference, read_noise_grey=2.0, bit_depth=None, seed=1)
+    mov = apply_sensor_noise(moved, read_noise_grey=2.0, bit_depth=None, seed=2)
+    ceiling = 230.0                                   # the left half is 80 grey brighter and saturates
+    ref[:, :100] += 80.0
+    mov[:, :100] += 80.0
+    ref, mov = np.minimum(ref, ceiling), np.minimum(mov, ceiling)
+    result = correlate(ref, mov, DICSettings(subset_size=21, step=10), roi=ROI,
+                       initial_parameters=lambda x, y: (0 * x + SHIFT[0], 0 * y + SHIFT[1]))
+    unc = dic_uncertainty(ref, result, NoiseModel(2.0, 2.0, None, "given"))
+    at = np.array([np.mean(ref[y - 10:y + 11, x - 10:x + 11] == ceiling) for x, y in zip(result.x, result.y)])
+    assert (at > 0.02).sum() >= 10 and (at == 0).sum() >= 10
+    assert np.all(unc.flag[(at > 0.02) & result.converged] == FLAG_SATURATED)
+    assert np.all(np.isnan(unc.sigma_u_px[at > 0.02]))
+    assert np.all(np.isfinite(unc.sigma_u_px[(at == 0) & result.converged]))

@@ -53,9 +53,12 @@ DEFAULT_MAX_RESIDUAL_RATIO = 2.0
 _PHASES = np.linspace(0.0, 0.5, 11)
 
 #: Flags of :attr:`MatchUncertainty.flag`.
-FLAG_NONE, FLAG_RESIDUAL, FLAG_NO_MATCH, FLAG_SINGULAR = 0, 1, 2, 3
+FLAG_NONE, FLAG_RESIDUAL, FLAG_NO_MATCH, FLAG_SINGULAR, FLAG_SATURATED = 0, 1, 2, 3, 4
 FLAG_NAMES = {FLAG_NONE: "", FLAG_RESIDUAL: "residual above noise", FLAG_NO_MATCH: "no match",
-              FLAG_SINGULAR: "singular subset Hessian"}
+              FLAG_SINGULAR: "texture too weak for a sigma", FLAG_SATURATED: "saturated subset"}
+#: A subset with more than this fraction of clipped pixels (at the image's ceiling or floor) gets no sigma: clipped
+#: pixels carry neither noise nor gradient, so the noise model says nothing about them.
+MAX_CLIPPED_FRACTION = 0.02
 
 
 # ---------------------------------------------------------------------------------------------------------------
@@ -303,6 +306,8 @@ class ReferenceSubsets:
     delta_f : ndarray (N,)
         ``sqrt(sum (f - f_m)^2)``, grey.
     ok : ndarray of bool (N,)
+    clipped : ndarray of bool (N,)
+        More than :data:`MAX_CLIPPED_FRACTION` of the subset is clipped (saturated or black): no sigma.
     subset_size, order : int
     gains : NoiseGainTable
     noise_reference : NoiseModel
@@ -317,6 +322,7 @@ class ReferenceSubsets:
     variance_reference: np.ndarray = field(repr=False)
     delta_f: np.ndarray = field(repr=False)
     ok: np.ndarray = field(repr=False)
+    clipped: np.ndarray = field(repr=False)
     subset_size: int = 0
     order: int = 1
     gains: NoiseGainTable | None = field(default=None, repr=False)
@@ -373,6 +379,8 @@ def reference_subsets(reference, x_px, y_px, subset_size: int, order: int, noise
     mean_grey = _box_mean(values, xs, ys, half)
     mean_var = _box_mean(variance, xs, ys, half)
     ok &= np.isfinite(mean_grey)
+    clipped = _box_mean(_clipped_pixels(values).astype(np.float64), xs, ys, half) > MAX_CLIPPED_FRACTION
+    ok &= ~clipped
     cov_uv = np.full((xs.size, 2, 2), np.nan)
     var_all = np.full((xs.size, npar), np.nan)
     uv_rows = np.full((xs.size, 2, npar), np.nan)
@@ -401,8 +409,23 @@ def reference_subsets(reference, x_px, y_px, subset_size: int, order: int, noise
         box = (int(xs.min()) - half, int(ys.min()) - half, int(xs.max()) + half + 1, int(ys.max()) + half + 1) \
             if xs.size else None
         gains = interpolation_noise_gain(values, degree, box=box)
-    return ReferenceSubsets(xs, ys, cov_uv, var_all, uv_rows, mean_grey, mean_var, delta_f, ok, int(subset_size), int(order),
+    return ReferenceSubsets(xs, ys, cov_uv, var_all, uv_rows, mean_grey, mean_var, delta_f, ok, clipped,
+                            int(subset_size), int(order),
                             gains, noise_reference)
+
+
+def _clipped_pixels(values: np.ndarray) -> np.ndarray:
+    """Pixels at the image's maximum or minimum where that value is a plateau (held by more than 0.1 % of the
+    pixels): a sensor's saturation or black level, not texture."""
+    finite = values[np.isfinite(values)]
+    out = np.zeros(values.shape, dtype=bool)
+    if finite.size == 0:
+        return out
+    for level in (finite.max(), finite.min()):
+        at = values == level
+        if np.count_nonzero(at) > 1e-3 * finite.size:
+            out |= at
+    return out
 
 
 def _box_mean(values: np.ndarray, xs: np.ndarray, ys: np.ndarray, half: int) -> np.ndarray:
@@ -527,7 +550,7 @@ def match_uncertainty(subsets: ReferenceSubsets, result: DICResult, noise_target
     npar = subsets.n_parameters
     matched = (result.status == CONVERGED) & subsets.ok
     flag = np.where(matched, FLAG_NONE, np.where(result.status == CONVERGED, FLAG_SINGULAR, FLAG_NO_MATCH))
-    flag = flag.astype(np.int8)
+    flag = np.where((result.status == CONVERGED) & subsets.clipped, FLAG_SATURATED, flag).astype(np.int8)
     cov_ref = np.full((n, 2, 2), np.nan)
     cov_tgt = np.full((n, 2, 2), np.nan)
     sigma_parameters = np.full((n, 12), np.nan)
