@@ -385,6 +385,8 @@ class StereoState:
     #: The calibration's part of the covariance of X_mm and U_mm (N, 3, 3) mm^2 (:func:`calibration_uncertainty`).
     calibration_cov_X_mm2: np.ndarray | None = field(default=None, repr=False)
     calibration_cov_U_mm2: np.ndarray | None = field(default=None, repr=False)
+    #: The calibration's sigma of the mean of U over the measured points (3,) mm: the part common to the field.
+    calibration_sigma_mean_U_mm: np.ndarray | None = field(default=None, repr=False)
 
     @property
     def valid(self) -> np.ndarray:
@@ -632,6 +634,7 @@ def calibration_uncertainty(shape: StereoShape, state: StereoState | None, rig, 
             shape.calibration_cov_X_mm2 = nan
         else:
             state.calibration_cov_X_mm2, state.calibration_cov_U_mm2 = nan, nan.copy()
+            state.calibration_sigma_mean_U_mm = np.full(3, np.nan)
         return
     x, y = shape.x.astype(np.float64), shape.y.astype(np.float64)
     base = np.column_stack([x, y])
@@ -651,4 +654,9 @@ def calibration_uncertainty(shape: StereoShape, state: StereoState | None, rig, 
     G_def = _sensitivity_everywhere(rig, x, y, base + np.column_stack([lm.u, lm.v]),
                                     base + np.column_stack([rmd.u, rmd.v]), names, max_points)
     state.calibration_cov_X_mm2 = propagate(G_def)
-    state.calibration_cov_U_mm2 = propagate(G_def - G_ref)
+    G_U = G_def - G_ref
+    state.calibration_cov_U_mm2 = propagate(G_U)
+    # the calibration error shifts the whole field alike as much as this: the mean's sigma (common mode)
+    used = state.valid & np.all(np.isfinite(G_U.reshape(n, -1)), axis=1)
+    G_mean = G_U[used].mean(axis=0) if used.any() else np.full(G_U.shape[1:], np.nan)
+    state.calibration_sigma_mean_U_mm = np.sqrt(np.clip(np.diag(G_mean @ cov @ G_mean.T), 0.0, None))

@@ -137,13 +137,15 @@ SUMMARY_COLUMNS = ("state", "left", "right", "result", "points", "measured", "me
                    "median_residual_px", "p95_residual_px", "mean_D_mm",
                    "median_sigma_U_um", "median_sigma_V_um", "median_sigma_W_um",
                    "median_sigma_U_calib_um", "median_sigma_V_calib_um", "median_sigma_W_calib_um",
+                   "sigma_mean_U_calib_um", "sigma_mean_V_calib_um", "sigma_mean_W_calib_um",
                    "sigma_flagged_fraction", "noise_source", "error")
 
 
 def sigma_summary(shape: StereoShape, state: StereoState | None = None) -> dict:
     """Per-state figures of the uncertainty: the median random and calibration sigma of U, V, W over the trusted
-    points (of X, Y, Z for the reference shape, whose U is zero), µm; the flagged fraction of the measured points;
-    where the noise came from."""
+    points (of X, Y, Z for the reference shape, whose U is zero), µm; the calibration's sigma of the mean of U over
+    the points (the part common to the whole field); the flagged fraction of the measured points; where the noise
+    came from."""
     sig = state_sigmas(shape, state)
     flag = sig["sigma_flag"]
     valid = shape.valid if state is None else state.valid
@@ -155,6 +157,9 @@ def sigma_summary(shape: StereoShape, state: StereoState | None = None) -> dict:
             values = sig[f"sigma_{name}{kind}_um"][trusted]
             values = values[np.isfinite(values)]
             out[f"median_sigma_{c}{kind}_um"] = float(np.median(values)) if values.size else float("nan")
+    common = getattr(state, "calibration_sigma_mean_U_mm", None) if state is not None else None
+    for k, c in enumerate("UVW"):
+        out[f"sigma_mean_{c}_calib_um"] = float(1e3 * common[k]) if common is not None else float("nan")
     out["sigma_flagged_fraction"] = float(np.count_nonzero(valid & (flag == 1)) / max(1, int(valid.sum())))
     unc = shape.match_uncertainty
     out["noise_source"] = unc.noise_source if unc is not None else ""
@@ -180,7 +185,7 @@ def write_state_summary(path: str | Path, rows: list[dict]) -> Path:
                              "" if q is None else _fmt(q.median_residual_px),
                              "" if q is None else _fmt(q.p95_residual_px),
                              _fmt(row["mean_D_mm"]) if "mean_D_mm" in row else "",
-                             *(_fmt(row[c]) if c in row else "" for c in SUMMARY_COLUMNS[10:16]),
+                             *(_fmt(row[c]) if c in row else "" for c in SUMMARY_COLUMNS[10:19]),
                              _fmt(row["sigma_flagged_fraction"]) if "sigma_flagged_fraction" in row else "",
                              row.get("noise_source", ""), row.get("error", "")])
     return Path(path)

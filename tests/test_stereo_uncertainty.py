@@ -224,6 +224,12 @@ def test_stereo_command_measures_the_noise_on_a_static_pair(draws, tmp_path, cap
     assert sigma_w.size > 100 and np.all(np.isfinite(sigma_w)) and np.all(sigma_w > 0)
     calib_w = np.array([float(r["sigma_W_calib_um"]) for r in rows if r["status_name"] == "converged"])
     assert np.all(np.isfinite(calib_w)) and np.all(calib_w > 0)
+    with open(tmp_path / "out" / "summary.csv", newline="") as handle:
+        summary = list(csv.DictReader(handle))
+    state_row = summary[1]
+    # the common part of the calibration error cannot exceed the per-point one (a mean of correlated errors)
+    assert 0 < float(state_row["sigma_mean_W_calib_um"]) <= 1.001 * float(calib_w.max())
+    assert state_row["noise_source"] == "static pair" and float(state_row["median_sigma_W_um"]) > 0
     # a "static" right image that is in fact another camera position: refused, naming the pair
     moved = np.roll(_IMAGES[1]["right_ref"], 1, axis=1)
     atomic_write_image(tmp_path / "moved_right.png", moved)
