@@ -111,6 +111,10 @@ def write_points_readme(folder: str | Path, experiment: str, extra_columns: dict
              "calibrated left camera (the instrument's) | mm |",
              "| `zncc`, `residual`, `status`, `status_name` | match quality, triangulation residual, status "
              "(`converged` or why not) | | –, px |",
+             "| `sigma_X_um ... sigma_W_um`, `sigma_*_calib_um`, `bias_bound_*_um`, `sigma_flag` | the instrument's "
+             "uncertainty of each number: random part, the calibration's (common to all points; NaN when the "
+             "calibration has no covariance), the interpolation bias bound, and the flag (0 trusted, 1 residual "
+             "above the noise, 2 no match, 3 texture too weak, 4 saturated) | calibrated left camera | µm |",
              "| `X_al Y_al Z_al`, `U_al V_al W_al` | the measurement mapped by `alignment.json` (X_al = R X + t, "
              "U_al = R U) | true left camera | mm |",
              "| `X_true Y_true Z_true`, `U_true V_true W_true`, `D_true` | exact position of the same material point "
