@@ -528,12 +528,17 @@ def test_stereo_results_carry_the_calibration_term_interpolated_within_2_percent
     base = np.column_stack([x, y])
     m = lambda d: SimpleNamespace(u=d[:, 0], v=d[:, 1])  # noqa: E731
     shape = SimpleNamespace(x=x, y=y, right_match=m(pr - base), calibration_G_ref=None, calibration_cov_X_mm2=None)
-    state = SimpleNamespace(left_match=m(pl2 - base), right_match=m(pr2 - base))
+    state = SimpleNamespace(left_match=m(pl2 - base), right_match=m(pr2 - base), valid=np.ones(x.size, bool))
     calibration_uncertainty(shape, state, rig, max_points=60)
     direct = displacement_calibration_covariance_mm2(rig, base, pr - base + base, pl2 - base + base, pr2 - base + base)
     s_interp = np.sqrt(np.einsum("nii->ni", state.calibration_cov_U_mm2))
     s_direct = np.sqrt(np.einsum("nii->ni", direct))
     assert np.all(np.abs(s_interp / s_direct - 1) < 0.02), np.abs(s_interp / s_direct - 1).max()
+    # the field's common part (sigma of the mean U) against common_mode_summary's direct figure
+    from measurement.uncertainty.calibration import common_mode_summary
+
+    common = common_mode_summary(rig, base, pr, pl2, pr2)
+    np.testing.assert_allclose(state.calibration_sigma_mean_U_mm, common.sigma_mean_mm, rtol=0.02)
     bare = CalibratedRig("rmm", rig_true.left, rig_true.right, R, T)
     shape.calibration_G_ref = None
     with warnings.catch_warnings():
