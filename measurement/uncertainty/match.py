@@ -246,7 +246,7 @@ def _hessians(image, grad_x, grad_y, weighted_gx, weighted_gy, xs, ys, half, ord
 
 #: Least fraction of a subset's gradient information (along its worst shape-parameter direction) that must be
 #: texture rather than noise for its sigma to be given (below it: FLAG_SINGULAR, NaN).
-MIN_SIGNAL_FRACTION = 0.5
+MIN_SIGNAL_FRACTION = 0.2
 
 
 def _signal_fraction(h: np.ndarray, h0: np.ndarray) -> np.ndarray:

@@ -173,7 +173,10 @@ def strain_noise(X_ref: np.ndarray, X_def: np.ndarray, x, y, window: int | None)
     ref, de = _grid(x, y, X_ref), _grid(x, y, X_def)
     if min(ref.shape[:2]) < 3 or (window is not None and min(ref.shape[:2]) < window):
         return {}
-    strain = surface_strain(ref, de, window=window)
+    try:
+        strain = surface_strain(ref, de, window=window)
+    except ValueError:              # too few measured neighbours left to span the grid: no strain figure
+        return {}
     return {name: _std(getattr(strain, name).ravel()) * 1e6 for name in ("E11", "E22", "E12")}
 
 
@@ -215,6 +218,9 @@ def static_noise_stereo(rig, left_ref, right_ref, left_static, right_static, set
     U_um = state.U_mm * 1e3
     bad = _outliers(U_um)
     ok = state.valid & ~bad & np.all(np.isfinite(U_um), axis=1)
+    sigma = None
+    if noise is not None:
+        sigma = instrument_sigma_stereo(rig, shape)
     values = np.where(ok[:, None], U_um - np.nanmean(U_um[ok], axis=0), np.nan)
     figures = {f"{c}_um": _std(values[:, k]) for k, c in enumerate("UVW")}
     detrended = {}
@@ -233,10 +239,7 @@ def static_noise_stereo(rig, left_ref, right_ref, left_static, right_static, set
     du, dv = state.right_match.u - rm.u, state.right_match.v - rm.v
     both = np.isfinite(du) & np.isfinite(dv)
     right_uv = (float(np.mean(du[both])), float(np.mean(dv[both]))) if both.any() else (0.0, 0.0)
-    sigma, predicted = None, {}
-    if noise is not None:
-        sigma = instrument_sigma_stereo(rig, shape)
-        predicted = _rms_over(sigma, ok, list(figures))
+    predicted = _rms_over(sigma, ok, list(figures)) if sigma is not None else {}
     return StaticNoise("stereo", figures, detrended, strain, float(np.hypot(*mean_uv)), motion_sigma, int(ok.sum()),
                        int(bad.sum()), shape.x.astype(np.float64), shape.y.astype(np.float64), values, shape.X_mm,
                        right_xy, mean_uv, right_uv, predicted, sigma)
@@ -252,6 +255,10 @@ def static_noise_2d(reference, static, settings: DICSettings, *, roi=None, mask=
     uv = np.column_stack([result.u, result.v]).astype(np.float64)
     bad = _outliers(uv)
     ok = result.converged & ~bad & np.all(np.isfinite(uv), axis=1)
+    sigma = None
+    if noise is not None:
+        sigma = instrument_sigma_2d(reference, result.x, result.y, settings, noise)
+        sigma[~result.converged] = np.nan           # as the stereo shape: no match, no sigma
     values = np.where(ok[:, None], uv - np.nanmean(uv[ok], axis=0), np.nan)
     figures = {"u_px": _std(values[:, 0]), "v_px": _std(values[:, 1])}
     x, y = result.x.astype(np.float64), result.y.astype(np.float64)
@@ -267,10 +274,6 @@ def static_noise_2d(reference, static, settings: DICSettings, *, roi=None, mask=
                            strain_window)
     mean_uv = tuple(float(m) for m in np.nanmean(uv[ok], axis=0)) if ok.any() else (math.nan, math.nan)
     motion_sigma = float(np.sqrt(0.5 * (figures["u_px"] ** 2 + figures["v_px"] ** 2)))
-    sigma, predicted = None, {}
-    if noise is not None:
-        sigma = instrument_sigma_2d(reference, result.x, result.y, settings, noise)
-        sigma[~result.converged] = np.nan           # as the stereo shape: no match, no sigma
-        predicted = _rms_over(sigma, ok, list(figures))
+    predicted = _rms_over(sigma, ok, list(figures)) if sigma is not None else {}
     return StaticNoise("2d", figures, detrended, strain, float(np.hypot(*mean_uv)), motion_sigma, int(ok.sum()),
                        int(bad.sum()), x, y, values, None, None, mean_uv, (0.0, 0.0), predicted, sigma)
