@@ -23,6 +23,21 @@ per cent between calibrations: the propagated sigma then under-states the calibr
 0.005 px. A standard deviation from n calibrations scatters by ~1 / sqrt(2 n) (13 % for the 30 of the CI-scale
 test, which measures 1.01 1.10 1.00; 6 % for the 150 of the ``slow`` one).
 
+The parametric bootstrap (:mod:`measurement.calibration.bootstrap`: recalibrations of synthetic corners at the fit's
+own residual noise) gives, as observed / median predicted over 5 calibrations of 40 draws against 40 calibrations
+(X; the displacement's within 0.03 but Z at 0.05 px, 2.04):
+
+    corner noise 0.005 px:   bootstrap 1.03  1.10  1.03     linear (median of 40) 1.04  1.12  1.03
+    corner noise 0.02 px:    bootstrap 1.14  1.19  1.12     linear                1.06  1.17  1.06
+    corner noise 0.05 px:    bootstrap 1.91  1.64  2.21     linear                1.66  1.46  2.04
+
+so it does not repair 0.05 px: over 200 calibrations there, ~5 % lie 5-13 predicted sigma out along the
+tilt/principal-point valley (2 of them a worse local minimum of the stepwise procedure, the rest global minima) and
+carry the spread (without them 0.96 1.16 0.97 of the linear sigma; 200 calibrations against the median linear sigma
+1.28 1.88 1.47; a 200-draw bootstrap of one calibration 1.48 2.10 1.55). The CI-scale test checks the bootstrap
+against the linear covariance at 0.005 px; the ``slow`` one states the issue's goal at 0.05 px as an expected
+failure.
+
 Run with ``-s`` to see the measured ratios.
 """
 import json
@@ -545,3 +560,78 @@ def test_stereo_results_carry_the_calibration_term_interpolated_within_2_percent
         warnings.simplefilter("ignore")       # the no-covariance warning is issued once per process (tested above)
         calibration_uncertainty(shape, None, bare)
     assert np.all(np.isnan(shape.calibration_cov_X_mm2))
+
+
+# ------------------------------------------------------------------------------------------------------------
+# The bootstrap covariance (measurement.calibration.bootstrap) against the linear one and the Monte Carlo
+# ------------------------------------------------------------------------------------------------------------
+def _noisy_corners(board, sigma_px, seed):
+    """The corners :func:`_calibrate` calibrates from for ``seed``."""
+    rng = np.random.default_rng(seed)
+    return [board[s] + rng.normal(0.0, sigma_px, board[s].shape) for s in ("left", "right")]
+
+
+def _bootstrap_sigmas(cal, corners, draws, seed, pixels):
+    """Predicted calibration sigma of X and of the 1 mm displacement (RMS over the points, (3,) mm each) from a
+    ``draws``-draw bootstrap of ``cal``, and the BootstrapCovariance."""
+    from measurement.calibration.bootstrap import with_bootstrap_covariance
+
+    boot_cal, boot = with_bootstrap_covariance(cal, *corners, BOARD_MM, (RIG.left.width, RIG.left.height),
+                                               draws=draws, seed=seed, tilt_guess_left_deg=TILT_GUESS["left"],
+                                               tilt_guess_right_deg=TILT_GUESS["right"])
+    l0, r0, l1, r1 = pixels
+    rms = lambda c: np.sqrt(np.mean(np.diagonal(c, axis1=1, axis2=2), axis=0))  # noqa: E731
+    return {"X": rms(calibration_covariance_mm2(boot_cal, l0, r0)),
+            "U": rms(displacement_calibration_covariance_mm2(boot_cal, l0, r0, l1, r1))}, boot
+
+
+#: Draws of the CI-scale bootstrap test: a sigma from 20 draws scatters by ~16 %, so 35 % is 2.2 sigma.
+BOOTSTRAP_DRAWS_CI = 20
+
+
+def test_bootstrap_agrees_with_the_linear_covariance_at_small_noise(mc):
+    """At 0.005 px the calibration is linear in the noise (the linear covariance predicts the Monte Carlo, above):
+    a bootstrap of the first calibration predicts the same sigma of X and U within its sampling scatter."""
+    cal = mc["cal"][0]
+    corners = _noisy_corners(_board_pixels(RIG, N_VIEWS, 3), SIGMA_PX, 1000)
+    boot, b = _bootstrap_sigmas(cal, corners, BOOTSTRAP_DRAWS_CI, 0, mc["pixels"])
+    l0, r0, l1, r1 = mc["pixels"]
+    rms = lambda c: np.sqrt(np.mean(np.diagonal(c, axis1=1, axis2=2), axis=0))  # noqa: E731
+    linear = {"X": rms(calibration_covariance_mm2(cal, l0, r0)),
+              "U": rms(displacement_calibration_covariance_mm2(cal, l0, r0, l1, r1))}
+    print(f"\nbootstrap ({b.draws} draws, corner noise {b.corner_sigma_px} px) / linear: "
+          f"X {np.round(boot['X'] / linear['X'], 3)}, U {np.round(boot['U'] / linear['U'], 3)}; Monte Carlo / "
+          f"bootstrap: X {np.round(np.sqrt(np.mean(mc['err_X'] ** 2, axis=(0, 1))) / boot['X'], 3)}, "
+          f"U {np.round(np.sqrt(np.mean(mc['err_U'] ** 2, axis=(0, 1))) / boot['U'], 3)}")
+    assert b.draws == BOOTSTRAP_DRAWS_CI and b.failed == 0 and b.wrong_minimum == 0
+    for f in ("X", "U"):
+        assert np.all(np.abs(boot[f] / linear[f] - 1.0) <= 0.35), (f, boot[f] / linear[f])
+    # the noise the bootstrap draws is the fit's residual: the 0.005 px the corners had, within 3 %
+    assert all(abs(s / SIGMA_PX - 1.0) < 0.03 for s in b.corner_sigma_px.values())
+
+
+@pytest.mark.slow
+@pytest.mark.xfail(strict=True, reason=(
+    "issue 36's goal at realistic corner noise is not met by a covariance estimated at the calibration: at 0.05 px "
+    "the Monte Carlo spread of 40 calibrations is 1.91 / 1.64 / 2.21 (X) and 1.91 / 1.64 / 2.04 (U) x the median "
+    "bootstrap sigma (5 calibrations x 40 draws), 1.7 / 1.5 / 2.0 x the linear one: the spread is carried by ~5 % "
+    "of calibrations 5-13 sigma out along the tilt/principal-point valley (2 of 200 a worse local minimum of the "
+    "stepwise procedure, the rest global minima), which a bootstrap around one estimate sees at a rate of its own"))
+def test_bootstrap_predicts_the_monte_carlo_at_realistic_corner_noise():
+    """The issue's goal at 0.05 px: predicted (median over 5 bootstraps of 40 draws) and observed (40
+    calibrations) calibration sigma of X and of the displacement within 20 % per component."""
+    sigma = 0.05
+    mc = _monte_carlo(40, sigma)
+    board = _board_pixels(RIG, N_VIEWS, 3)
+    predicted = {"X": [], "U": []}
+    for i in range(5):
+        cal = _calibrate(board, sigma, 1000 + i)
+        boot, b = _bootstrap_sigmas(cal, _noisy_corners(board, sigma, 1000 + i), 40, i, mc["pixels"])
+        print(f"  bootstrap {i}: {b.wrong_minimum} wrong minima, {b.not_converged} not converged")
+        for f in ("X", "U"):
+            predicted[f].append(boot[f])
+    ratios = {f: np.sqrt(np.mean(mc[f"err_{f}"] ** 2, axis=(0, 1))) / np.median(predicted[f], axis=0)
+              for f in ("X", "U")}
+    print(f"  observed / bootstrap: X {np.round(ratios['X'], 3)}, U {np.round(ratios['U'], 3)}")
+    for f in ("X", "U"):
+        assert np.all(np.abs(ratios[f] - 1.0) <= GOAL), (f, ratios[f])

@@ -29,7 +29,10 @@ a finite, square, symmetric matrix (``|C_ij - C_ji| <= 1e-9 sqrt(C_ii C_jj)``) w
 row per name, names unique and each one of ``left.<intrinsic>``, ``right.<intrinsic>`` (the names of
 :data:`~measurement.camera.INTRINSIC_NAMES` and :data:`~measurement.camera.EXTRA_NAMES`) or
 :data:`~measurement.calibration.stepwise.STEREO_PARAMETER_NAMES`. A covariance that is not finite (a singular
-normal matrix) or has a negative variance is not written.
+normal matrix) or has a negative variance is not written. The entry's ``"estimator"`` says what made it:
+``"linear"`` (the least squares' ``s^2 (J^T J)^-1``, :data:`COVARIANCE_CONVENTION`) or ``"bootstrap (K draws)"``
+(:mod:`measurement.calibration.bootstrap`, :data:`BOOTSTRAP_COVARIANCE_CONVENTION`); files written before it have
+none and are linear.
 """
 from __future__ import annotations
 
@@ -48,6 +51,7 @@ from measurement.calibration.stepwise import (
     CameraCalibration,
     StereoCalibration,
 )
+from measurement.calibration.bootstrap import LINEAR, parse_estimator
 from measurement.camera import EXTRA_NAMES, INTRINSIC_NAMES, MAX_TILT_DEG, TILT_MODELS, ScheimpflugCamera
 from labio.atomic import atomic_write_text
 from labio.schema import FileFormatError, Node, read_json_file, read_text_file
@@ -56,7 +60,7 @@ __all__ = ["FORMAT", "CONVENTION", "RANGES", "CalibratedRig", "FileFormatError",
            "save_calibration", "load_calibration", "export_opencv_yaml", "load_opencv_yaml", "rig_to_dict", "save_rig",
            "opencv_distortion_cost_px", "EXTRA_RANGES", "EXTRA_CONVENTION", "CAMERA_FORMAT",
            "camera_calibration_to_dict", "save_camera_calibration", "load_camera_calibration",
-           "COVARIANCE_CONVENTION", "COVARIANCE_PARAMETER_NAMES"]
+           "COVARIANCE_CONVENTION", "BOOTSTRAP_COVARIANCE_CONVENTION", "COVARIANCE_PARAMETER_NAMES"]
 
 FORMAT = "scheimpflug-stereo-calibration/1"
 CONVENTION = ("Camera frame as OpenCV (x right, y down, z forward), pixel centres at integer coordinates. "
@@ -85,6 +89,13 @@ COVARIANCE_CONVENTION = ("s^2 (J^T J)^-1 of the final stereo least-squares probl
                          "stereo.rvec_* is the rotation vector of R_right_from_left (rad), stereo.T_*_mm is "
                          "T_right_from_left_mm (mm), alpha_deg and beta_deg are in degrees, fx, fy, cx, cy and skew "
                          "in px, distortion terms dimensionless.")
+#: What a bootstrap covariance is (estimator "bootstrap (K draws)"), written beside it.
+BOOTSTRAP_COVARIANCE_CONVENTION = (
+    "sample covariance of K stereo calibrations (K in 'estimator') of synthetic corners: the fitted model's "
+    "projections of the board at the fitted poses plus Gaussian noise of the fit's residual standard deviation per "
+    "camera, each calibrated with the same options; stereo.rvec_* is the difference of the rotation vectors of "
+    "R_right_from_left (rad), stereo.T_*_mm of T_right_from_left_mm (mm), alpha_deg and beta_deg in degrees, fx, "
+    "fy, cx, cy and skew in px, distortion terms dimensionless.")
 #: Every name a covariance row may carry: each camera's intrinsics, then the stereo pose.
 COVARIANCE_PARAMETER_NAMES = (tuple(f"{side}.{n}" for side in ("left", "right") for n in INTRINSIC_NAMES + EXTRA_NAMES)
                               + STEREO_PARAMETER_NAMES)
@@ -101,7 +112,8 @@ class CalibratedRig:
     """A calibrated stereo pair as loaded from a file.
 
     ``covariance`` (k, k) and ``covariance_names`` (k,): the calibration's parameter covariance as stored in the
-    file (:data:`COVARIANCE_CONVENTION`), or None and ``()`` when the file has none.
+    file (:data:`COVARIANCE_CONVENTION`), or None and ``()`` when the file has none. ``covariance_estimator``:
+    ``"linear"`` or ``"bootstrap (K draws)"`` (:mod:`measurement.calibration.bootstrap`), what made it.
     """
 
     model: str
@@ -111,9 +123,10 @@ class CalibratedRig:
     T_right_from_left_mm: np.ndarray
     covariance: np.ndarray | None = None
     covariance_names: tuple = ()
+    covariance_estimator: str = LINEAR
 
 
-def _covariance_entry(covariance, names) -> dict:
+def _covariance_entry(covariance, names, estimator: str = LINEAR) -> dict:
     """``{"covariance": {...}}`` for a present covariance, else ``{}``. One that is not finite or has a negative
     variance (what inverting a singular normal matrix leaves) is not written either: the loader would refuse it,
     and with it the whole calibration."""
@@ -122,7 +135,10 @@ def _covariance_entry(covariance, names) -> dict:
     cov = np.asarray(covariance, float)
     if not (np.all(np.isfinite(cov)) and np.all(np.diag(cov) >= 0)):
         return {}
-    return {"covariance": {"names": list(names), "matrix": cov.tolist(), "convention": COVARIANCE_CONVENTION}}
+    kind, _ = parse_estimator(estimator)             # an unknown estimator is a programming error: raise
+    convention = COVARIANCE_CONVENTION if kind == LINEAR else BOOTSTRAP_COVARIANCE_CONVENTION
+    return {"covariance": {"names": list(names), "matrix": cov.tolist(), "convention": convention,
+                           "estimator": estimator}}
 
 
 def _extra_terms(cam: ScheimpflugCamera) -> dict:
@@ -158,7 +174,8 @@ def calibration_to_dict(cal: StereoCalibration, extra: dict | None = None) -> di
                     "sigma_rvec": cal.sigma_stereo["rvec"], "sigma_T_mm": cal.sigma_stereo["T_mm"]},
          "reprojection_rms_px": dict(cal.rms_px),
          "steps": [{"step": s[0], "free": list(s[1]), "rms_px": s[2]} for s in cal.steps],
-         **_covariance_entry(getattr(cal, "covariance", None), getattr(cal, "covariance_names", ()))}
+         **_covariance_entry(getattr(cal, "covariance", None), getattr(cal, "covariance_names", ()),
+                             getattr(cal, "covariance_estimator", LINEAR))}
     _with_extra_convention(d, (cal.left.camera, cal.right.camera))
     if extra:
         d.update(extra)
@@ -176,7 +193,7 @@ def rig_to_dict(rig: CalibratedRig, extra: dict | None = None) -> dict:
          "stereo": {"R_right_from_left": np.asarray(rig.R_right_from_left).tolist(),
                     "rvec_right_from_left": cv2.Rodrigues(np.asarray(rig.R_right_from_left))[0].ravel().tolist(),
                     "T_right_from_left_mm": np.asarray(rig.T_right_from_left_mm).ravel().tolist()},
-         **_covariance_entry(rig.covariance, rig.covariance_names)}
+         **_covariance_entry(rig.covariance, rig.covariance_names, rig.covariance_estimator)}
     _with_extra_convention(d, (rig.left, rig.right))
     if extra:
         d.update(extra)
@@ -289,12 +306,19 @@ def _translation(node: Node, shape=(3,)) -> np.ndarray:
 _MAX_COVARIANCE_ROWS = len(COVARIANCE_PARAMETER_NAMES)
 
 
-def _covariance_from_json(node: Node) -> tuple[np.ndarray, tuple[str, ...]]:
-    """The validated ``(matrix (k, k), names (k,))`` of a ``covariance`` entry (module docstring)."""
+def _covariance_from_json(node: Node) -> tuple[np.ndarray, tuple[str, ...], str]:
+    """The validated ``(matrix (k, k), names (k,), estimator)`` of a ``covariance`` entry (module docstring)."""
     node.mapping()
-    node.only_keys(("names", "matrix", "convention"))
+    node.only_keys(("names", "matrix", "convention", "estimator"))
     if node.get("convention") is not None:
         node["convention"].string(nonempty=False)
+    estimator = LINEAR                              # files written before the key: the least squares' covariance
+    if node.get("estimator") is not None:
+        estimator = node["estimator"].string()
+        try:
+            parse_estimator(estimator)
+        except ValueError as err:
+            raise node["estimator"].error(str(err)) from None
     names_node = node["names"]
     names = tuple(n.string() for n in names_node.sequence(1, _MAX_COVARIANCE_ROWS))
     for i, name in enumerate(names):
@@ -322,7 +346,7 @@ def _covariance_from_json(node: Node) -> tuple[np.ndarray, tuple[str, ...]]:
         i, j = (int(a) for a in np.argwhere(bad)[0])
         raise matrix_node.error(f"is not symmetric: [{i}][{j}] = {cov[i, j]:.17g} but [{j}][{i}] = {cov[j, i]:.17g} "
                                 f"(allowed: {COVARIANCE_SYMMETRY_TOL:g} sqrt(C_ii C_jj))")
-    return cov, names
+    return cov, names, estimator
 
 
 def _rig_from_json(doc: Node) -> CalibratedRig:
@@ -345,10 +369,10 @@ def _rig_from_json(doc: Node) -> CalibratedRig:
         rv = rvec.array((3,), bound=10.0)
         if not np.max(np.abs(cv2.Rodrigues(rv)[0] - R)) <= 1e-6:
             raise rvec.error("disagrees with R_right_from_left (edit both, or remove the rotation vector)")
-    cov, cov_names = None, ()
+    cov, cov_names, estimator = None, (), LINEAR
     if doc.get("covariance") is not None:             # optional: calibrations of this instrument write it
-        cov, cov_names = _covariance_from_json(doc["covariance"])
-    return CalibratedRig(model, left, right, R, T, cov, cov_names)
+        cov, cov_names, estimator = _covariance_from_json(doc["covariance"])
+    return CalibratedRig(model, left, right, R, T, cov, cov_names, estimator)
 
 
 def load_calibration(path: str | Path) -> CalibratedRig:

@@ -158,6 +158,10 @@ class StereoCalibration:
         mm for T. Its diagonal is ``sigma**2`` (left, right) and ``sigma_stereo**2``.
     covariance_names : (k,) names of its rows, in order: ``"left.fx"`` ... ``"right.p2"`` (the model's free
         intrinsics, :func:`free_intrinsics`), then :data:`STEREO_PARAMETER_NAMES`.
+    covariance_estimator : ``"linear"`` (the ``s^2 (J^T J)^-1`` above, what :func:`calibrate_stereo` gives) or
+        ``"bootstrap (K draws)"``: the sample covariance of K recalibrations of synthetic corners
+        (:func:`measurement.calibration.bootstrap.with_bootstrap_covariance`; what it achieves where the estimate
+        is nonlinear in the corner noise is said there).
     """
 
     model: str
@@ -172,6 +176,7 @@ class StereoCalibration:
     lens: str = "brown4"
     covariance: np.ndarray | None = None
     covariance_names: tuple = ()
+    covariance_estimator: str = "linear"
 
 
 # ------------------------------------------------------------------------------------------------------------
@@ -549,6 +554,40 @@ def calibrate_stereo(points_left: np.ndarray, points_right: np.ndarray, board_mm
                              {"left": out_l.rms_px, "right": out_r.rms_px},
                              {"left": out_l.per_view_rms_px, "right": out_r.per_view_rms_px}, steps, lens,
                              covariance=cov_shared, covariance_names=cov_names)
+
+
+def stereo_problem(cal: StereoCalibration, points_left: np.ndarray, points_right: np.ndarray, board_mm: np.ndarray):
+    """The joint stereo least-squares problem of ``cal``'s model on these corners, at ``cal``'s parameters.
+
+    Parameters
+    ----------
+    cal : StereoCalibration
+        Its model, lens, intrinsics, stereo pose and left board poses (``cal.left.rvecs``, ``tvecs_mm``).
+    points_left, points_right : ndarray, shape (V, N, 2), px
+        Corners (missing ones NaN rows); V must be the number of ``cal``'s board poses.
+    board_mm : ndarray, shape (N, 3), mm
+
+    Returns
+    -------
+    tuple
+        ``(residual, x, n_shared, view_rows)``: the residual function ``x -> (4 V N,) px`` (missing corners 0),
+        the parameter vector at ``cal`` (both cameras' free intrinsics, stereo rotation vector and T, then each
+        view's left board pose), the number of shared parameters, and the residual rows of each view; what
+        :func:`solve_stereo_problem` takes.
+    """
+    names = (free_intrinsics(cal.model, cal.lens), free_intrinsics(cal.model, cal.lens))
+    residual = _stereo_residual_fn(cal.left.camera, cal.right.camera, board_mm, points_left, points_right, names)
+    x = np.concatenate([[getattr(cal.left.camera, n) for n in names[0]], [getattr(cal.right.camera, n) for n in names[1]],
+                        Rotation.from_matrix(cal.R_right_from_left).as_rotvec(), cal.T_right_from_left_mm,
+                        np.hstack([cal.left.rvecs, cal.left.tvecs_mm]).ravel()])
+    V, N = np.shape(points_left)[:2]
+    return residual, x, len(names[0]) + len(names[1]) + 6, _stereo_rows(V, N)
+
+
+def solve_stereo_problem(residual, x0: np.ndarray, n_shared: int, view_rows: np.ndarray,
+                         solver: str = "schur-lm") -> np.ndarray:
+    """Minimise a :func:`stereo_problem` from ``x0`` with the calibration's solver; returns the solution x."""
+    return _solve(residual, x0, n_shared, view_rows, solver).x
 
 
 # ------------------------------------------------------------------------------------------------------------

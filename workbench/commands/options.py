@@ -41,6 +41,18 @@ def positive_int_arg(text: str) -> int:
     return value
 
 
+#: Most calibrations one ``--covariance bootstrap`` may ask for (a typing slip of 40000 would run for a day).
+MAX_BOOTSTRAP_DRAWS = 10_000
+
+
+def draws_arg(text: str) -> int:
+    """``--bootstrap-draws``: an integer in [2, MAX_BOOTSTRAP_DRAWS] (a sample covariance needs two draws)."""
+    value = integer_arg(text)
+    if not 2 <= value <= MAX_BOOTSTRAP_DRAWS:
+        raise argparse.ArgumentTypeError(f"must be an integer in [2, {MAX_BOOTSTRAP_DRAWS}], got {value}")
+    return value
+
+
 def views_arg(text: str) -> int:
     value = positive_int_arg(text)
     if value > MAX_VIEWS:

@@ -7,7 +7,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from workbench.commands.options import (angle_deg_arg, integer_arg, non_negative_float_arg, output_folder,
+from workbench.commands.options import (angle_deg_arg, draws_arg, integer_arg, non_negative_float_arg, output_folder,
                                         positive_float_arg, positive_int_arg, scale_arg, seed_arg, subset_arg,
                                         views_arg)
 from workbench.commands.sweep import run_study
@@ -47,6 +47,11 @@ def add_parser(sub) -> None:
     rc.add_argument("--calibration-views", type=views_arg, default=30)
     rc.add_argument("--validation-views", type=views_arg, default=20)
     rc.add_argument("--refine-corners", action="store_true", help="saddle-fit refinement of OpenCV's corners")
+    rc.add_argument("--covariance", choices=("linear", "bootstrap"), default="linear",
+                    help="parameter covariance stored with each calibration: linear (default) or bootstrap "
+                         "(--bootstrap-draws recalibrations of synthetic corners; see `workbench calibrate`)")
+    rc.add_argument("--bootstrap-draws", type=draws_arg, default=40,
+                    help="calibrations of the --covariance bootstrap (default 40)")
     rc.add_argument("--store", type=Path, default=None,
                     help="dataset store: renders kept by content hash and reused (default $WORKBENCH_STORE or "
                          "~/.cache/scheimpflug-dic-workbench/datasets)")
@@ -273,7 +278,8 @@ def reproduce_calibration_command(args) -> int:
     output_folder(args.out)
     m = reproduce_calibration(args.out, scale=args.scale, seed=args.seed, spp=args.spp, noise_grey=args.noise_grey,
                               n_calibration=args.calibration_views, n_validation=args.validation_views,
-                              refine_corners=args.refine_corners, store=args.store, renderer=args.renderer)
+                              refine_corners=args.refine_corners, store=args.store, renderer=args.renderer,
+                              covariance=args.covariance, bootstrap_draws=args.bootstrap_draws)
     for model, r in m["models"].items():
         v, pf = r["validation_exact"], r["validation_plane_fit"]
         print(f"{model:8s}: reprojection RMS {r['reprojection_rms_px']['left']:.4f} / "

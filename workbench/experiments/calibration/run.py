@@ -45,7 +45,9 @@ RIG_TILT_GUESS_DEG = {"paper": DATASHEET_TILT_DEG,
 
 
 def _as_rig(cal) -> CalibratedRig:
-    return CalibratedRig(cal.model, cal.left.camera, cal.right.camera, cal.R_right_from_left, cal.T_right_from_left_mm)
+    """The calibration as the instrument loads it, its parameter covariance (and estimator) included."""
+    return CalibratedRig(cal.model, cal.left.camera, cal.right.camera, cal.R_right_from_left, cal.T_right_from_left_mm,
+                         cal.covariance, tuple(cal.covariance_names), cal.covariance_estimator)
 
 
 def score_against_truth(rig_cal: CalibratedRig, truth_rig: StereoRig, val_points_left_mm: np.ndarray) -> dict:
@@ -131,7 +133,8 @@ def mc_summary(records: list) -> dict | None:
 def reproduce_calibration(out_dir: Path, *, scale: float = 1.0, seed: int = 0, spp: int = 64, noise_grey: float = 1.0,
                           n_calibration: int = 30, n_validation: int = 20, models=("rmm", "pinhole"),
                           progress: bool = True, refine_corners: bool = False, rig_name: str = "paper",
-                          store=None, mc_target_grey: float | None = None, renderer: str = "auto") -> dict:
+                          store=None, mc_target_grey: float | None = None, renderer: str = "auto",
+                          covariance: str = "linear", bootstrap_draws: int = 40) -> dict:
     """Render, calibrate, validate; writes calibration files, ``metrics.json`` and ``report.md``.
 
     The board views are rendered into the dataset store (``store``: a :class:`workbench.store.DatasetStore` or
@@ -143,9 +146,15 @@ def reproduce_calibration(out_dir: Path, *, scale: float = 1.0, seed: int = 0, s
     ``renderer``: ``"auto"`` renders every view the exact renderer can make without Monte Carlo
     (:mod:`scenes.exact_render`), the rest with Mitsuba; ``"mitsuba"`` all with Mitsuba
     (:data:`workbench.experiments.calibration.views.BOARD_RENDERERS`).
+    ``covariance``: the parameter covariance each calibration stores, ``"linear"`` (the least squares') or
+    ``"bootstrap"`` (``bootstrap_draws`` recalibrations of synthetic corners, seeded by ``seed``:
+    :mod:`measurement.calibration.bootstrap`, with what it does and does not achieve; costs that many calibrations
+    per model).
     """
     from workbench.scenario import BOARD_RENDERER_TAGS
 
+    if covariance not in ("linear", "bootstrap"):
+        raise ValueError(f"covariance must be 'linear' or 'bootstrap', got {covariance!r}")
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     rig = get_rig(rig_name, scale)
@@ -177,7 +186,8 @@ def reproduce_calibration(out_dir: Path, *, scale: float = 1.0, seed: int = 0, s
                "render_s": "reused" if reused else round(t_render, 1), "images": str(images),
                "images_dataset": dataset_record("checkerboard", content, images),
                "datasheet_tilt_deg": tilt_guess, "rig": rig_name,
-               "truth": {s: rig.camera(s).intrinsics() for s in ("left", "right")}, "models": {}}
+               "truth": {s: rig.camera(s).intrinsics() for s in ("left", "right")}, "models": {},
+               "covariance": covariance if covariance == "linear" else f"bootstrap ({bootstrap_draws} draws)"}
     # Detect once; every model calibrates from the same corners (detection at 5 MP takes ~3 s per image).
     t0 = time.perf_counter()
     cal_pairs = detect_pairs(cal_files["left"], cal_files["right"], progress=progress, refine=refine_corners)
@@ -192,6 +202,18 @@ def reproduce_calibration(out_dir: Path, *, scale: float = 1.0, seed: int = 0, s
                                model=model, tilt_guess_left_deg=tilt_guess["left"],
                                tilt_guess_right_deg=tilt_guess["right"])
         t_cal = time.perf_counter() - t0
+        boot = None
+        if covariance == "bootstrap":
+            from measurement.calibration.bootstrap import with_bootstrap_covariance
+
+            t0 = time.perf_counter()
+            cal, b = with_bootstrap_covariance(cal, cal_pairs.points_left, cal_pairs.points_right, board_mm,
+                                               cal_pairs.image_size, draws=bootstrap_draws, seed=seed,
+                                               tilt_guess_left_deg=tilt_guess["left"],
+                                               tilt_guess_right_deg=tilt_guess["right"])
+            boot = {"draws": b.draws, "refused": b.failed, "not_converged": b.not_converged,
+                    "wrong_minimum": b.wrong_minimum, "seed": b.seed,
+                    "corner_sigma_px": b.corner_sigma_px, "seconds": round(time.perf_counter() - t0, 1)}
         suffix = "" if model == "rmm" else f"_{model}"
         _write_calibration_pair(cal, out_dir / f"calibration{suffix}.json", out_dir / f"calibration{suffix}.yaml")
         rig_cal = _as_rig(cal)
@@ -202,6 +224,7 @@ def reproduce_calibration(out_dir: Path, *, scale: float = 1.0, seed: int = 0, s
              "stereo": {"R_right_from_left": cal.R_right_from_left.tolist(),
                         "T_right_from_left_mm": cal.T_right_from_left_mm.tolist(), "sigma": cal.sigma_stereo},
              "steps": [[s[0], s[2]] for s in cal.steps],
+             "covariance_estimator": cal.covariance_estimator, **({"bootstrap": boot} if boot else {}),
              "validation_exact": score_against_truth(rig_cal, rig, val_points),
              "validation_plane_fit": plane_fits_of_detected_boards(rig_cal, val_pairs)}
         metrics["models"][model] = m
