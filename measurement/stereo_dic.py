@@ -338,6 +338,8 @@ class StereoShape:
     #: (:func:`calibration_uncertainty`); None until computed, NaN for a calibration without covariance.
     calibration_cov_X_mm2: np.ndarray | None = field(default=None, repr=False)
     calibration_G_ref: np.ndarray | None = field(default=None, repr=False)
+    #: Triangulation sensitivity at the reference points (N, 3, 4) mm/px (:mod:`measurement.uncertainty.stereo`).
+    G_ref: np.ndarray | None = field(default=None, repr=False)
 
 
 @dataclass
@@ -493,6 +495,7 @@ def shape_uncertainty(shape: StereoShape, left, right, R, T, settings: DICSettin
     G = triangulation_sensitivity(left, right, R, T, shape.X_mm)
     shape.subsets, shape.match_uncertainty, shape.noise = subsets, unc, noise
     shape.cov_X_mm2 = shape_covariance_mm2(G, unc.cov_reference_px2, unc.cov_target_px2)
+    shape.G_ref = G                           # every state's propagation starts from it
     if shape.bias_bound_px is None:          # the reference's texture alone: the same whatever the noise
         shape.bias_bound_px = bias_bound_px(values, shape.x, shape.y, settings.subset_size, settings.interpolation,
                                             order=settings.order)
@@ -568,7 +571,7 @@ def _state_uncertainty(state: StereoState, shape: StereoShape, left, right, R, T
     """Fill the state's uncertainty fields (see :class:`StereoState`)."""
     lu = match_uncertainty(shape.subsets, state.left_match, shape.noise["left"])
     ru = match_uncertainty(shape.subsets, state.right_match, shape.noise["right"])
-    G_ref = triangulation_sensitivity(left, right, R, T, shape.X_mm)
+    G_ref = shape.G_ref if shape.G_ref is not None else triangulation_sensitivity(left, right, R, T, shape.X_mm)
     G_def = triangulation_sensitivity(left, right, R, T, state.X_mm)
     su = shape.match_uncertainty
     cov_X, cov_U = state_covariances_mm2(G_ref, G_def, su.cov_reference_px2, su.cov_target_px2,

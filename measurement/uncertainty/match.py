@@ -516,7 +516,7 @@ class MatchUncertainty:
                 "noise_source": self.noise_source}
 
 
-def _warp_phases(parameters: np.ndarray, half: int, samples: int = 5) -> tuple[np.ndarray, np.ndarray]:
+def _warp_phases(parameters: np.ndarray, half: int, samples: int = 3) -> tuple[np.ndarray, np.ndarray]:
     """Fractional target positions of a ``samples`` x ``samples`` lattice over each warped subset, (N, S)."""
     d = np.linspace(-half, half, samples)
     dx, dy = (v.ravel() for v in np.meshgrid(d, d))
