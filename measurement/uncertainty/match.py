@@ -480,6 +480,9 @@ class MatchUncertainty:
     bias_bound_px : ndarray (N, 2) or None
         Bound on the interpolation bias of u and v over sub-pixel shifts (:mod:`measurement.uncertainty.bias`):
         systematic, kept apart from the random sigma; None when not computed.
+    misfit_bias_px : ndarray (N, 2) or None
+        Estimated (signed) error of u and v from the shape function's misfit, px
+        (:mod:`measurement.uncertainty.misfit`): systematic, like the bias bound; None when not computed.
     """
 
     sigma_u_px: np.ndarray
@@ -493,6 +496,7 @@ class MatchUncertainty:
     noise_reference: NoiseModel | None = None
     noise_target: NoiseModel | None = None
     bias_bound_px: np.ndarray | None = field(default=None, repr=False)
+    misfit_bias_px: np.ndarray | None = field(default=None, repr=False)
 
     @property
     def trusted(self) -> np.ndarray:
@@ -500,11 +504,14 @@ class MatchUncertainty:
 
     def columns(self) -> dict[str, np.ndarray]:
         """Per-point columns for result files: sigma_u_px, sigma_v_px, residual_ratio, sigma_flag (and
-        bias_bound_u_px, bias_bound_v_px when the bias bound was computed)."""
+        bias_bound_u_px, bias_bound_v_px, misfit_bias_u_px, misfit_bias_v_px when the systematic terms were
+        computed)."""
         out = {"sigma_u_px": self.sigma_u_px, "sigma_v_px": self.sigma_v_px,
                "residual_ratio": self.residual_ratio, "sigma_flag": self.flag.astype(np.int64)}
         if self.bias_bound_px is not None:
             out |= {"bias_bound_u_px": self.bias_bound_px[:, 0], "bias_bound_v_px": self.bias_bound_px[:, 1]}
+        if self.misfit_bias_px is not None:
+            out |= {"misfit_bias_u_px": self.misfit_bias_px[:, 0], "misfit_bias_v_px": self.misfit_bias_px[:, 1]}
         return out
 
     def summary(self) -> dict:
@@ -665,7 +672,9 @@ def dic_uncertainty(reference, result: DICResult, noise_reference: NoiseModel | 
                     noise_target: NoiseModel | None = None, *,
                     max_residual_ratio: float = DEFAULT_MAX_RESIDUAL_RATIO, bias: bool = False) -> MatchUncertainty:
     """Uncertainty of a 2-D match in one call: :func:`reference_subsets` + :func:`match_uncertainty` (and, with
-    ``bias``, the interpolation bias bound of every point, :func:`measurement.uncertainty.bias.bias_bound_px`).
+    ``bias``, the systematic terms of every point: the interpolation bias bound,
+    :func:`measurement.uncertainty.bias.bias_bound_px`, and the shape function's misfit estimated from the measured
+    field, :func:`measurement.uncertainty.misfit.misfit_bias_px`).
 
     Without ``noise_reference`` the noise is fitted to the match's residuals (:func:`noise_from_residuals`, both
     images alike); ``noise_target`` defaults to ``noise_reference``.
@@ -692,9 +701,11 @@ def dic_uncertainty(reference, result: DICResult, noise_reference: NoiseModel | 
         from dataclasses import replace
 
         from .bias import bias_bound_px
+        from .misfit import misfit_bias_px
 
         unc = replace(unc, bias_bound_px=bias_bound_px(prepared.values, result.x, result.y, settings.subset_size,
-                                                       settings.interpolation, order=settings.order))
+                                                       settings.interpolation, order=settings.order),
+                      misfit_bias_px=misfit_bias_px(prepared, result, subsets.uv_rows))
     return unc
 
 

@@ -156,7 +156,7 @@ def report_text(results: list[dict], figures: dict, run_info: dict, real: list[d
         lines += ["*Quick run (CI scale): fewer draws and one specimen; the figures scatter more than in a full "
                   "run.*", ""]
     header = ["| class | comp. | std(z) | 68 % | 95 % | decile worst | flagged | noise est. / true (grey) | median sigma "
-              "| total RMSE | bias RMS | goals |", "|---|---|---|---|---|---|---|---|---|---|---|---|"]
+              "| total RMSE | bias RMS | misfit est. RMS | goals |", "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for kind, title in (("planar", "Planar classes (2-D DIC, px)"), ("stereo", "Stereo classes (µm; strain in µε)")):
         rows = [r for r in results if r["kind"] == kind]
         if not rows:
@@ -185,6 +185,7 @@ def report_text(results: list[dict], figures: dict, run_info: dict, real: list[d
                     f"{r['median_sigma'][i]:.3g} {r['unit']}",
                     f"{r['total_rmse'][i]:.3g}" if "total_rmse" in r else "–",
                     f"{r['bias_rms'][i]:.3g}" if "bias_rms" in r else "–",
+                    f"{r['misfit_rms'][i]:.3g}" if "misfit_rms" in r else "–",
                     goals if first else ""]) + " |")
         lines.append("")
     lines += _real_lines(real or [])
@@ -198,7 +199,18 @@ def report_text(results: list[dict], figures: dict, run_info: dict, real: list[d
               "that cannot follow a strain gradient, the render. Where it is comparable to the sigma (the strain "
               "gradient with a first-order shape function, fine speckle), the total error exceeds the random "
               "interval, and the residual check does not always flag it: such a mismatch costs less grey-level "
-              "residual than the noise.", ""]
+              "residual than the noise. The instrument estimates the shape function's part from the measured field "
+              "itself (`misfit est. RMS`, written as `misfit_bias_u_px`, `misfit_bias_v_px` by `workbench dic`: "
+              "the field's next-order derivatives projected through each subset's least squares); where it is the "
+              "bias, the two columns agree."]
+    gradient = [r for r in results if r["kind"] == "planar" and "bias_rms_after_misfit" in r
+                and r["settings"].get("field") == "quadratic"]
+    for r in gradient:
+        lines.append(f"- {r['class']}: bias RMS {r['bias_rms'][0]:.3g} / {r['bias_rms'][1]:.3g} px, estimated "
+                     f"misfit {r['misfit_rms'][0]:.3g} / {r['misfit_rms'][1]:.3g} px, bias left after taking the "
+                     f"estimate off {r['bias_rms_after_misfit'][0]:.3g} / {r['bias_rms_after_misfit'][1]:.3g} px "
+                     "(u / v).")
+    lines.append("")
     for key, caption in (("z_planar", "Normalised random errors of the planar classes against N(0, 1)"),
                          ("z_stereo", "Normalised random errors of the stereo classes against N(0, 1)"),
                          ("coverage", "std(z) and 95 % coverage per class and component, with the goal bands"),
