@@ -334,3 +334,21 @@ def test_the_sweep_says_it_connects_to_a_given_scheduler_and_starts_only_its_own
     out = capsys.readouterr().out
     assert expected in out.splitlines()
     assert wrong not in out
+
+
+def test_a_local_cluster_leaves_this_process_environment_as_it_was(monkeypatch):
+    """The workers get one thread per library (WORKER_ENV), but this process keeps its own environment: the Dask
+    nanny wrote NUMBA_NUM_THREADS=1 into it, after which numba refused to compile anything here ("Cannot set
+    NUMBA_NUM_THREADS to a different value"; the docs gallery's twin example after the error-budget one)."""
+    from workbench.studies.sweep import WORKER_ENV, start_client
+
+    for key in WORKER_ENV:
+        monkeypatch.delenv(key, raising=False)
+    client, cluster = start_client(None, 1)
+    try:
+        assert all(os.environ.get(key) is None for key in WORKER_ENV), {k: os.environ.get(k) for k in WORKER_ENV}
+        seen = client.run(lambda: (os.environ.get("NUMBA_NUM_THREADS"), os.environ.get("OMP_NUM_THREADS")))
+        assert list(seen.values()) == [("1", "1")]
+    finally:
+        client.close()
+        cluster.close()

@@ -128,10 +128,20 @@ def start_client(scheduler: str | None, workers: int):
             raise ConnectionError(f"--scheduler {scheduler}: no Dask scheduler answers there ({err})") from None
     environ = dict(dask.config.get("distributed.nanny.pre-spawn-environ", {}))
     environ.update(WORKER_ENV)
-    with dask.config.set({"distributed.nanny.pre-spawn-environ": environ,
-                          "distributed.worker.daemon": False}):
-        cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None,
-                               silence_logs=logging.ERROR)
+    # the nanny writes pre-spawn-environ into this process's os.environ too; left there, NUMBA_NUM_THREADS=1 makes
+    # numba refuse every later compilation in this process ("Cannot set NUMBA_NUM_THREADS to a different value")
+    saved = {key: os.environ.get(key) for key in environ}
+    try:
+        with dask.config.set({"distributed.nanny.pre-spawn-environ": environ,
+                              "distributed.worker.daemon": False}):
+            cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None,
+                                   silence_logs=logging.ERROR)
+    finally:
+        for key, value in saved.items():
+            if value is None:
+                os.environ.pop(key, None)
+            else:
+                os.environ[key] = value
     return Client(cluster), cluster
 
 
