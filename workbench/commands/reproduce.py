@@ -111,7 +111,10 @@ def add_parser(sub) -> None:
     un = repsub.add_parser("uncertainty", help="is the per-point sigma honest? coverage of the instrument's "
                                                "uncertainty over noise draws of planar and stereo scenes (issue 36)")
     un.add_argument("--quick", action="store_true", help="fewer draws and one specimen (CI scale)")
-    un.add_argument("--planar-only", action="store_true", help="only the planar (2-D) classes: no rendering")
+    un.add_argument("--planar-only", action="store_true", help="only the planar (2-D) classes: no rendering, no "
+                                                                "calibrations")
+    un.add_argument("--calibrations", type=positive_int_arg, default=None,
+                    help="independent calibrations of the calibration class (default 20; 6 with --quick)")
     un.add_argument("--draws", type=positive_int_arg, default=None,
                     help="noise draws per class (default 12 planar / 6 stereo; 6 / 3 with --quick)")
     un.add_argument("--real-data", type=Path, default=None,
@@ -183,14 +186,21 @@ def reproduce_uncertainty_command(args) -> int:
         real = default if default.is_dir() else None
     elif not real.is_dir():
         raise ValueError(f"--real-data {real}: no such folder (run scripts/fetch_twin_data.sh)")
+    if args.calibrations is not None and args.calibrations < 2:
+        raise ValueError(f"--calibrations {args.calibrations}: at least 2 calibrations are needed")
     result = run(args.out, quick=args.quick, draws_planar=args.draws, draws_stereo=args.draws, store=args.store,
-                 stereo=not args.planar_only, real_data=real)
+                 stereo=not args.planar_only, real_data=real, calibration=not args.planar_only,
+                 calibrations=args.calibrations)
     for r in result["classes"]:
         v = r["verdict"]
         figures = ", ".join(f"{n} std(z) {f['std_z']:.3f} cov95 {f['coverage_95']:.3f}"
                             for n, f in r["components"].items())
         print(f"{r['class']}: {figures}; flagged {r['flagged_fraction']:.3f}; "
               + ", ".join(f"{k} {'met' if ok else 'MISSED'}" for k, ok in v.items()))
+    for cal in result.get("calibration") or []:
+        print(f"{cal['class']}: observed / predicted sigma "
+              + ", ".join(f"{n} {c['ratio']:.2f}" for n, c in cal["components"].items())
+              + f"; {'met' if cal['verdict']['within_20_percent'] else 'MISSED'} (goal within 20 %)")
     print(f"report: {args.out / 'report.html'}")
     return 0
 

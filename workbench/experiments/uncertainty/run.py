@@ -26,9 +26,11 @@ NORMAL_68 = 0.6827
 
 
 def run(out_dir: Path, *, quick: bool = False, draws_planar: int | None = None, draws_stereo: int | None = None,
-        store=None, stereo: bool = True, progress: bool = True, real_data: Path | None = None) -> dict:
+        store=None, stereo: bool = True, progress: bool = True, real_data: Path | None = None,
+        calibration: bool = True, calibrations: int | None = None) -> dict:
     """Run every class and write the report (module notes). ``quick``: fewer draws and one specimen (CI scale).
-    ``real_data``: the folder of ``scripts/fetch_twin_data.sh`` (real static pairs, :mod:`.real`); None: none."""
+    ``real_data``: the folder of ``scripts/fetch_twin_data.sh`` (real static pairs, :mod:`.real`); None: none.
+    ``calibration``: the calibration class (:mod:`.calibration`, ``calibrations`` of them: default 20, 6 quick)."""
     from labio.atomic import atomic_write_text
     from workbench.reporting.html_report import write_html_report
 
@@ -53,6 +55,15 @@ def run(out_dir: Path, *, quick: bool = False, draws_planar: int | None = None, 
         specimens = ("beam",) if quick else tuple(SPECIMENS)
         results += run_stereo_classes(out_dir, draws=draws_stereo, store=store, progress=progress,
                                       specimens=specimens)
+    calib = None
+    if calibration:
+        from .calibration import run_calibration_class
+
+        n = calibrations or (6 if quick else 20)
+        if progress:
+            print(f"calibration class: {n} calibrations of the paper rig", flush=True)
+        calib = [run_calibration_class(calibrations=n, progress=progress),
+                 run_calibration_class(calibrations=n, print_error_mm=0.001, single_start=False, progress=progress)]
     real = []
     if real_data is not None:
         from .real import run_real
@@ -69,14 +80,14 @@ def run(out_dir: Path, *, quick: bool = False, draws_planar: int | None = None, 
     figures = _figures(out_dir, results)
     text = report_text(results, figures, {"planar_s": round(planar_s, 1), "total_s": round(seconds, 1),
                                           "quick": quick, "draws_planar": draws_planar,
-                                          "draws_stereo": draws_stereo if stereo else None}, real)
+                                          "draws_stereo": draws_stereo if stereo else None}, real, calib)
     atomic_write_text(out_dir / "report.md", text)
     write_html_report(out_dir / "report.html", "Is the per-point uncertainty honest?", text, out_dir)
     record = [{k: v for k, v in r.items() if k != "z"} for r in results]
-    atomic_write_text(out_dir / "uncertainty.json", json.dumps({"classes": record, "real": real,
+    atomic_write_text(out_dir / "uncertainty.json", json.dumps({"classes": record, "real": real, "calibration": calib,
                                                                 "seconds": round(seconds, 1), "goals": GOALS},
                                                                indent=1, allow_nan=True, default=_plain))
-    return {"classes": results, "real": real, "seconds": seconds}
+    return {"classes": results, "real": real, "calibration": calib, "seconds": seconds}
 
 
 def _plain(value):
@@ -138,7 +149,8 @@ def _real_lines(real: list[dict]) -> list[str]:
     return lines
 
 
-def report_text(results: list[dict], figures: dict, run_info: dict, real: list[dict] | None = None) -> str:
+def report_text(results: list[dict], figures: dict, run_info: dict, real: list[dict] | None = None,
+                calibration: list[dict] | None = None) -> str:
     """The Markdown report."""
     lines = ["# Is the per-point uncertainty honest?", "",
              "Every result the instrument writes carries a standard uncertainty per point (`sigma_u_px`, "
@@ -188,6 +200,10 @@ def report_text(results: list[dict], figures: dict, run_info: dict, real: list[d
                     f"{r['misfit_rms'][i]:.3g}" if "misfit_rms" in r else "–",
                     goals if first else ""]) + " |")
         lines.append("")
+    if calibration is not None:
+        from .calibration import calibration_lines
+
+        lines += calibration_lines(calibration)
     lines += _real_lines(real or [])
     missed = [r["class"] for r in results if not all(r["verdict"].values())]
     lines += ["## Verdict", "",
