@@ -70,8 +70,9 @@ from measurement.uncertainty.calibration import (
 )
 from scenes.targets import Checkerboard
 from workbench.experiments.calibration.views import board_outline_mm
+from workbench.experiments.uncertainty.calibration import specimen_points, true_pixels
 from workbench.poses import random_board_poses
-from workbench.rigs import facing_plane_world, paper_rig
+from workbench.rigs import paper_rig
 
 PATTERN = (11, 8)
 BOARD_MM = board_points_mm(PATTERN, 5.0)
@@ -99,21 +100,14 @@ def _board_pixels(rig, n_views, seed):
 
 
 def _specimen_points(rig):
-    """A 5 x 5 grid (+-15 mm) on the plane the rig faces, and that grid moved 1 mm along the plane's normal,
-    (25, 3) mm each, left frame."""
-    centre, normal = facing_plane_world(rig)
-    e1 = np.cross([0.0, 1.0, 0.0], normal)
-    e1 /= np.linalg.norm(e1)
-    e2 = np.cross(normal, e1)
-    g = np.linspace(-15.0, 15.0, 5)
-    ref = np.array([centre + a * e1 + b * e2 for a in g for b in g])
-    return ref, ref + 1.0 * normal
+    """A 5 x 5 grid (+-15 mm) on the plane the rig faces and that grid moved 1 mm along its normal (the calibration
+    class's points, :func:`workbench.experiments.uncertainty.calibration.specimen_points`)."""
+    return specimen_points(rig)
 
 
 def _pixels(rig, X_left_mm):
     """True pixel pairs of left-frame points."""
-    return (rig.left.project(X_left_mm),
-            rig.right.project(X_left_mm @ rig.R_right_from_left.T + rig.T_right_from_left_mm))
+    return true_pixels(rig, X_left_mm)
 
 
 def _calibrate(board, sigma_px, seed):

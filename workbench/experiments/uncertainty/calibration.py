@@ -35,7 +35,9 @@ TILT_GUESS_DEG = {"left": (0.0, -4.0), "right": (0.0, 4.0)}
 GOAL = 0.20
 
 
-def _points(rig):
+def specimen_points(rig):
+    """A 5 x 5 grid (+-15 mm) on the plane the rig faces, and that grid moved 1 mm along the plane's normal,
+    (25, 3) mm each, left frame."""
     from workbench.rigs import facing_plane_world
 
     centre, normal = facing_plane_world(rig)
@@ -47,7 +49,8 @@ def _points(rig):
     return ref, ref + normal
 
 
-def _pixels(rig, X_left_mm):
+def true_pixels(rig, X_left_mm):
+    """True pixel pairs (left (N, 2), right (N, 2)) of left-frame points (N, 3) mm."""
     return (rig.left.project(X_left_mm),
             rig.right.project(X_left_mm @ rig.R_right_from_left.T + rig.T_right_from_left_mm))
 
@@ -126,8 +129,8 @@ def run_calibration_class(*, calibrations: int = 20, corner_noise_px: float = 0.
     if calibrations < 2:
         raise ValueError(f"calibrations must be at least 2, got {calibrations}")
     rig = paper_rig(1.0)
-    truth = _points(rig)
-    pixels = (*_pixels(rig, truth[0]), *_pixels(rig, truth[1]))
+    truth = specimen_points(rig)
+    pixels = (*true_pixels(rig, truth[0]), *true_pixels(rig, truth[1]))
     start = time.perf_counter()
     multi, single = [], []
     for i in range(calibrations):
