@@ -20,7 +20,7 @@ SHIFT_PX = (2.3, -1.7)
 ROI = "30,30,170,130"
 COLUMNS = ["x", "y", "u", "v", "zncc", "iterations", "status", "status_name",
            *PARAMETER_NAMES[1:6], *PARAMETER_NAMES[7:], "sigma_u_px", "sigma_v_px", "residual_ratio", "sigma_flag",
-           "bias_bound_u_px", "bias_bound_v_px"]
+           "bias_bound_u_px", "bias_bound_v_px", "misfit_bias_u_px", "misfit_bias_v_px"]
 
 
 @pytest.fixture(scope="module")

@@ -75,6 +75,8 @@ LENS_TERMS = {"brown4": (), "brown5": ("k3",), "full": ("k3", "s1", "s2", "s3", 
 #: 360 px left of the centre) seen in some board-pose sets converges from the centre to a mirror minimum (cx 1561
 #: instead of 869 px, beta -8.1 instead of -4.6 deg, reprojection RMS 8 x the corner noise, its points 25-125
 #: predicted sigma out, whatever the corner noise); every off-centre start reaches the true one. The lowest cost wins.
+#: Relative cost reduction another start must reach to replace the centre start's result.
+MULTI_START_GAIN = 0.01
 PRINCIPAL_POINT_STARTS = ((0.0, 0.0), (-1 / 6, 0.0), (1 / 6, 0.0), (0.0, -1 / 6), (0.0, 1 / 6))
 
 #: Steps 2-4 of §2.2: the intrinsics each one frees (the poses are always free).
@@ -362,9 +364,11 @@ def calibrate_camera(image_points: np.ndarray, board_mm: np.ndarray, image_size:
                 if i == 0:
                     raise
                 continue
-        # another start wins only where it found a lower minimum, not the same one a hair lower: where the centre
-        # start finds the least-squares solution, the result is the paper's procedure, step for step
-        if best is None or run[4] < best[4] * (1.0 - 1e-6):
+        # another start wins only where it found a materially lower minimum (1 % of the cost), not the same one a
+        # hair lower, nor a point further along a flat valley (an untilted real camera's tilt): where the centre
+        # start finds the least-squares solution, the result is the paper's procedure, step for step. The mirror
+        # minimum it replaces costs 60 x the true one (seed 103: RMS 0.0054 against 0.0007 px).
+        if best is None or run[4] < best[4] * (1.0 - MULTI_START_GAIN):
             best, best_warnings = run, caught
     for w in best_warnings:
         warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
