@@ -85,21 +85,27 @@ def _z(values, sigma):
     return deviation / sigma[:, keep]
 
 
-def _check(z, what):
+def _figures(z, what):
+    """std(z) and 95 % coverage per component (printed; the tests hold them to [0.9, 1.1] and [0.93, 0.97])."""
     spread = z.std(axis=(0, 1))
     coverage = np.mean(np.abs(z) < 1.959964, axis=(0, 1))
     print(f"{what}: std(z) {spread.round(3)}, 95 % coverage {coverage.round(3)} over {z.shape[1]} points x "
           f"{z.shape[0]} draws")
+    return spread, coverage
+
+
+def test_sigma_of_the_reference_shape_is_honest(draws):
+    z = _z([s.X_mm for s, _ in draws], [sigmas(s.cov_X_mm2) for s, _ in draws])
+    spread, coverage = _figures(z, "X, Y, Z")
     assert np.all((spread > 0.9) & (spread < 1.1)), spread
     assert np.all((coverage > 0.93) & (coverage < 0.97)), coverage
 
 
-def test_sigma_of_the_reference_shape_is_honest(draws):
-    _check(_z([s.X_mm for s, _ in draws], [sigmas(s.cov_X_mm2) for s, _ in draws]), "X, Y, Z")
-
-
 def test_sigma_of_the_displacement_is_honest(draws):
-    _check(_z([st.U_mm for _, st in draws], [sigmas(st.cov_U_mm2) for _, st in draws]), "U, V, W")
+    z = _z([st.U_mm for _, st in draws], [sigmas(st.cov_U_mm2) for _, st in draws])
+    spread, coverage = _figures(z, "U, V, W")
+    assert np.all((spread > 0.9) & (spread < 1.1)), spread
+    assert np.all((coverage > 0.93) & (coverage < 0.97)), coverage
 
 
 def test_dropping_the_shared_reference_noise_fails_the_claim(draws):
@@ -158,7 +164,9 @@ def test_sigma_of_window_strain_is_honest(draws, window, fit):
         s = state_strain_sigma(shape, state, strain, G_ref, G_def, pairs)
         values.append(np.stack([strain.E11, strain.E22, strain.E12], -1)[grid.active])
         sig.append(s[grid.active])
-    _check(_z(values, sig), f"E11, E22, E12 (window {window}, {fit})")
+    spread, coverage = _figures(_z(values, sig), f"E11, E22, E12 (window {window}, {fit})")
+    assert np.all((spread > 0.9) & (spread < 1.1)), spread
+    assert np.all((coverage > 0.93) & (coverage < 0.97)), coverage
 
 
 
