@@ -2,7 +2,8 @@
 
 Every field of a config dataclass is one of: ``bool``, ``int``, ``float``, ``str``, a tuple of floats or ints
 (``tuple[float, ...]`` or a fixed length ``tuple[float, float, float]``), ``X | None`` of those (``None`` =
-absent in TOML, which has no null), or a nested config dataclass. A field may restrict its values with
+absent in TOML, which has no null), a nested config dataclass, or ``tuple[Config, ...]`` (an array of tables,
+``[[camera]]`` in TOML; its items' keys are named ``camera[0].pixel_pitch_um``). A field may restrict its values with
 ``metadata={"choices": (...)}`` or bound them with ``metadata={"min": ..., "max": ...}`` and document its unit
 and source with ``metadata={"doc": ...}``.
 
@@ -44,6 +45,15 @@ def _optional_inner(tp):
     if typing.get_origin(tp) in (typing.Union, types.UnionType):
         args = [a for a in typing.get_args(tp) if a is not type(None)]
         if len(args) == 1 and len(typing.get_args(tp)) == 2:
+            return args[0]
+    return None
+
+
+def _table_array_item(tp):
+    """The item config of ``tuple[Config, ...]`` (an array of tables), else None."""
+    if typing.get_origin(tp) is tuple:
+        args = typing.get_args(tp)
+        if len(args) == 2 and args[1] is Ellipsis and _is_config(args[0]):
             return args[0]
     return None
 
@@ -99,6 +109,12 @@ def coerce_value(value, tp, key: str, meta=None):
         args = typing.get_args(tp)
         if not isinstance(value, (list, tuple)):
             raise ConfigError(f"{key}: expected a list, got {_describe(value)}")
+        if len(args) == 2 and args[1] is Ellipsis and _is_config(args[0]):
+            # an array of tables ([[camera]] in TOML): each item a config of its own
+            if not value and meta.get("min_items"):
+                raise ConfigError(f"{key}: give at least {meta['min_items']} (an array of tables, [[{key.split('.')[-1]}]])")
+            return tuple(v if isinstance(v, args[0]) else from_dict(args[0], v, f"{key}[{i}]")
+                         for i, v in enumerate(value))
         if len(args) == 2 and args[1] is Ellipsis:
             item_types = [args[0]] * len(value)
         else:
@@ -164,6 +180,8 @@ def to_dict(config, skip_defaults: bool = False) -> dict:
             value = to_dict(value, skip_defaults)
             if skip_defaults and not value:
                 continue
+        elif isinstance(value, tuple) and value and all(dataclasses.is_dataclass(v) for v in value):
+            value = [to_dict(v, skip_defaults) for v in value]
         elif isinstance(value, tuple):
             value = list(value)
         out[f.name] = value
@@ -213,7 +231,11 @@ def parameter_paths(cls, prefix: str = "") -> list[str]:
     for f in dataclasses.fields(cls):
         tp = _optional_inner(hints[f.name]) or hints[f.name]
         path = f"{prefix}{f.name}"
-        paths.extend(parameter_paths(tp, path + ".") if _is_config(tp) else [path])
+        item = _table_array_item(tp)
+        if item is not None:
+            paths.extend(parameter_paths(item, path + "[]."))
+        else:
+            paths.extend(parameter_paths(tp, path + ".") if _is_config(tp) else [path])
     return paths
 
 

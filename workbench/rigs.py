@@ -243,7 +243,9 @@ def rig_from_calibration(path, scale: float = 1.0) -> StereoRig:
     YAML/XML, DICe, VIC-3D, MATLAB; MatchID needs the image size and is refused here) as the true rig of a render;
     ``scale`` < 1 shrinks image size and K together. The working distance is where the optical axes meet. A
     calibration does not say how large the pixels are: they are taken as the paper camera's (3.45 um at scale 1),
-    which only the lens' diffraction and defocus in pixels depend on."""
+    which only the lens' diffraction and defocus in pixels depend on -- unless the file is this project's JSON with
+    an ``optics`` block (a rig from ``workbench design``, :func:`optics_block`): then its pixel pitch, its thin
+    lenses' focal lengths and f-number are the rig's (the instrument ignores the block)."""
     from pathlib import Path
 
     from measurement.calibration.formats import load_any_calibration
@@ -255,12 +257,48 @@ def rig_from_calibration(path, scale: float = 1.0) -> StereoRig:
         raise ValueError(f"rig calibration {path}: no such file")
     cal = load_any_calibration(path)
     cams = {side: (c.scaled(scale) if scale != 1.0 else c) for side, c in (("left", cal.left), ("right", cal.right))}
+    optics = _optics_of_file(path)
     rig = StereoRig(f"calibration:{path.name}", cams["left"], cams["right"], np.asarray(cal.R_right_from_left, float),
-                    np.asarray(cal.T_right_from_left_mm, float), pixel_pitch_mm=DEFAULT_PIXEL_PITCH_MM / scale)
+                    np.asarray(cal.T_right_from_left_mm, float),
+                    pixel_pitch_mm=optics.get("pixel_pitch_mm", DEFAULT_PIXEL_PITCH_MM) / scale,
+                    lens_focal_length_mm=optics.get("lens_focal_length_mm"), f_number=optics.get("f_number", 0.0))
     meeting = rig.optical_axes_meeting_point_mm()
     if not (np.all(np.isfinite(meeting)) and meeting[2] > 0):
         raise ValueError(f"rig calibration {path}: the optical axes do not meet in front of the cameras")
     return replace(rig, working_distance_mm=float(np.linalg.norm(meeting)))
+
+
+def optics_block(pixel_pitch_mm: float, focal_length_mm: tuple[float, float], f_number: float) -> dict:
+    """The ``optics`` entry a designed rig's calibration JSON carries (read back by :func:`rig_from_calibration`)."""
+    return {"optics": {"about": "the true rig's optics (workbench design): pixel pitch at full resolution, each "
+                                "camera's thin-lens focal length and the f-number; the instrument does not read it",
+                       "pixel_pitch_mm": float(pixel_pitch_mm),
+                       "lens_focal_length_mm": [float(focal_length_mm[0]), float(focal_length_mm[1])],
+                       "f_number": float(f_number)}}
+
+
+def _optics_of_file(path) -> dict:
+    """The ``optics`` block of a calibration JSON (empty for other files or without one); checked."""
+    if path.suffix.lower() != ".json":
+        return {}
+    try:
+        block = json.loads(path.read_text(encoding="utf-8")).get("optics")
+    except (OSError, ValueError, AttributeError):
+        return {}
+    if block is None:
+        return {}
+    try:
+        pitch = float(block["pixel_pitch_mm"])
+        F = tuple(float(v) for v in block["lens_focal_length_mm"])
+        N = float(block["f_number"])
+    except (KeyError, TypeError, ValueError) as err:
+        raise ValueError(f"rig calibration {path}: optics: needs pixel_pitch_mm, lens_focal_length_mm [left, right] "
+                         f"and f_number ({err})") from None
+    if not (np.isfinite(pitch) and pitch > 0 and len(F) == 2 and all(np.isfinite(F)) and min(F) > 0
+            and np.isfinite(N) and N > 0):
+        raise ValueError(f"rig calibration {path}: optics: pixel_pitch_mm, lens_focal_length_mm and f_number must be "
+                         f"positive numbers, got {block!r}")
+    return {"pixel_pitch_mm": pitch, "lens_focal_length_mm": F, "f_number": N}
 
 
 def get_rig(name: str, scale: float = 1.0) -> StereoRig:
