@@ -36,12 +36,12 @@ import contextlib
 import sys
 import warnings
 
-from workbench.commands import (budget, calibrate, calibration, catalog, dic, export, gate, parameters, render,
-                                reproduce, score, stereo, sweep, twin)
+from workbench.commands import (budget, calibrate, calibration, catalog, design, dic, export, gate, parameters,
+                                render, reproduce, score, stereo, sweep, twin)
 
 #: The verbs in the order ``workbench --help`` lists them.
 VERBS = (render, reproduce, calibrate, stereo, dic, sweep, budget, export, score, gate, parameters, calibration,
-         catalog, twin)
+         catalog, twin, design)
 #: (command, subcommand or None) -> handler(args) -> exit code, from every verb's module.
 HANDLERS = {key: handler for verb in VERBS for key, handler in verb.HANDLERS.items()}
 

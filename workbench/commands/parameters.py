@@ -9,18 +9,21 @@ from workbench.config import parameter_paths
 
 def add_parser(sub) -> None:
     """The ``parameters`` subcommand."""
-    sub.add_parser("parameters", help="list every scenario.* and instrument.* parameter with its default and doc")
+    sub.add_parser("parameters", help="list every scenario.*, instrument.* and design.* parameter with its default "
+                                      "and doc")
 
 
 def parameters_command(args) -> int:
+    from workbench.design.inputs import DesignInput
     from workbench.scenario import Instrument, Scenario
 
-    for root, cls in (("scenario", Scenario), ("instrument", Instrument)):
+    for root, cls in (("scenario", Scenario), ("instrument", Instrument), ("design", DesignInput)):
         for path in parameter_paths(cls):
             obj, owner = cls(), cls
             parts = path.split(".")
             for name in parts[:-1]:
-                obj = getattr(obj, name)
+                # an array of tables ("camera[]"): its first default item shows the item's defaults
+                obj = getattr(obj, name[:-2])[0] if name.endswith("[]") else getattr(obj, name)
                 owner = type(obj)
             f = {x.name: x for x in dataclasses.fields(owner)}[parts[-1]]
             hint = typing.get_type_hints(owner)[parts[-1]]

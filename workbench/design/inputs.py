@@ -190,6 +190,9 @@ def check_design(design: DesignInput, where: str = "design") -> DesignInput:
     if s.roi_mm is not None and not (s.roi_mm[0] < s.roi_mm[2] and s.roi_mm[1] < s.roi_mm[3]):
         raise ConfigError(f"{where}: specimen.roi_mm: expected (x0, y0, x1, y1) with x0 < x1 and y0 < y1, got "
                           f"{list(s.roi_mm)}")
+    if s.quantity == "strain" and s.component == "out-of-plane":
+        raise ConfigError(f"{where}: specimen.quantity = 'strain' with specimen.component = 'out-of-plane': a surface "
+                          "has no out-of-plane strain; choose component = 'in-plane'")
     if design.search.subset_px % 2 == 0:
         raise ConfigError(f"{where}: search.subset_px: must be odd, got {design.search.subset_px}")
     for i, lens in enumerate(design.lens):
