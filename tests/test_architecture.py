@@ -22,7 +22,7 @@ ALLOWED = {"labio": set(), "scenes": {"labio"}, "measurement": {"labio"},
 #: Third-party packages a package must not import (the instrument runs on real images, without the renderer).
 FORBIDDEN_THIRD_PARTY = {"measurement": {"mitsuba", "drjit"}, "labio": {"mitsuba", "drjit"}}
 #: The rooms of workbench/, lowest first: a module imports only from its own room or a lower one.
-ROOMS = ("core", "reporting", "experiments", "studies", "twin", "scoring", "commands", "cli")
+ROOMS = ("core", "reporting", "experiments", "studies", "twin", "design", "scoring", "commands", "cli")
 #: The workbench's truth writers (scene builders): they compute truth with scenes/ only, never the instrument.
 TRUTH_WRITERS = ("workbench/experiments/*/scenes.py", "workbench/experiments/calibration/views.py",
                  "workbench/truth_schema.py", "workbench/twin/scene.py")

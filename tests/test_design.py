@@ -175,14 +175,29 @@ def table():
     return pattern_table(33, 1)
 
 
-def test_specimen_larger_than_any_field_of_view_names_the_nearest_distance(table):
+def test_specimen_larger_than_any_field_of_view_names_the_nearest_distance(table, tmp_path):
+    """Refused by the search, and before any work by the command (no table, no file written)."""
+    from workbench.config import save_config
+    from workbench.design.run import run_design
     from workbench.design.search import InfeasibleDesignError, search
     from workbench.design.surface import plane_surface
 
     design = check_design(_small_design(specimen=SpecimenInput(plane_mm=(200.0, 150.0), sample_points=(5, 4))))
-    with pytest.raises(InfeasibleDesignError, match=r"no lens on offer reaches the field of view.*nearest feasible: "
-                                                    r"working distance \d+ mm"):
+    message = r"no lens on offer reaches the field of view.*nearest feasible: working distance (\d+) mm"
+    with pytest.raises(InfeasibleDesignError, match=message):
         search(design, plane_surface(200.0, 150.0, samples=(5, 4)), table)
+    path = tmp_path / "big.toml"
+    save_config(design, path)
+    with pytest.raises(InfeasibleDesignError, match=message) as err:
+        run_design(path, tmp_path / "out")
+    assert not (tmp_path / "out" / "design.json").exists() and not (tmp_path / "out" / "report.html").exists()
+    # the distance it names does fit: the plane at that distance is seen whole
+    import re
+    D = float(re.search(message, str(err.value)).group(1))
+    from workbench.design.geometry import build_candidate
+    from workbench.design.predict import predict
+    cand = build_candidate(SMALL, design.lens[0], 4.0, D, 23.0, tilt=False, tilt_max_deg=0.0)
+    predict(cand, plane_surface(200.0, 150.0, samples=(5, 4)), SMALL, design.lighting, design.search, table)
 
 
 def test_depth_range_beyond_any_depth_of_field_is_named(table):

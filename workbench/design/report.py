@@ -209,6 +209,26 @@ def verification_figure(verification: dict, path: Path) -> str:
     return _png(fig, path)
 
 
+def images_figure(verification: dict, path: Path) -> str:
+    """The rendered left reference images of the verified rigs (the camera's exposure applied, no noise)."""
+    import matplotlib.pyplot as plt
+
+    from measurement.image_io import read_grey
+
+    fig, axes = plt.subplots(1, len(verification), figsize=(5.6 * len(verification), 4.4), squeeze=False)
+    for ax, (key, v) in zip(axes[0], verification.items()):
+        image = read_grey(Path(v["images"]) / "left_00.png").astype(float) * v["exposure_grey"] / 255.0
+        step = max(1, image.shape[1] // 700)
+        im = ax.imshow(image[::step, ::step], cmap="gray", vmin=0, vmax=float(np.percentile(image, 99.9)),
+                       extent=(0, image.shape[1], image.shape[0], 0))
+        fig.colorbar(im, ax=ax, shrink=0.8, label="grey level")
+        ax.set_xlabel("x (px)")
+        ax.set_ylabel("y (px)")
+        ax.set_title(f"{key}: left reference image", fontsize=9)
+    fig.tight_layout()
+    return _png(fig, path)
+
+
 def _summary_rows(rigs: dict) -> list[str]:
     keys = list(rigs)
     lines = ["| | " + " | ".join(keys) + " |", "|---|" + "---|" * len(keys)]
@@ -292,7 +312,15 @@ def write_report(dr) -> Path:
                 inst = de["instrument_sigma_um"][k] if de.get("instrument_sigma_um") else None
                 lines.append(f"| {key} | {comp} | {_fmt(st['predicted_um'][k])} | {_fmt(st['measured_um'][k])} | "
                              f"{_fmt(st['ratio'][k])} | {_fmt(inst)} | {_fmt(de['measured_um'][k])} |")
+        if "untilted" in dr.verification and "chosen" in dr.verification:
+            pr = [u / c for u, c in zip(dr.verification["untilted"]["static"]["predicted_um"],
+                                        dr.verification["chosen"]["static"]["predicted_um"])]
+            me = [u / c for u, c in zip(dr.verification["untilted"]["static"]["measured_um"],
+                                        dr.verification["chosen"]["static"]["measured_um"])]
+            lines += ["", "Untilted over chosen, U, V, W: predicted " + ", ".join(f"{v:.2f}" for v in pr)
+                      + "; measured on the renders " + ", ".join(f"{v:.2f}" for v in me) + "."]
         lines += ["", f"![verification]({verification_figure(dr.verification, out / 'verification.png')})", "",
+                  f"![renders]({images_figure(dr.verification, out / 'renders.png')})", "",
                   "Static strain noise: " + "; ".join(
                       f"{k}: predicted exx {_fmt(v['static']['strain_predicted_ue'][0])} µε, measured E11 "
                       f"{_fmt(v['static']['strain_measured_ue'].get('E11'))} µε"

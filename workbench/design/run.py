@@ -36,7 +36,7 @@ from .geometry import CandidateRig, Placement, SIDES
 from .inputs import DesignInput, load_design
 from .pattern import pattern_table
 from .predict import Prediction, predict
-from .search import search
+from .search import precheck, search
 from .surface import surface_of
 from .verify import verify, write_rig_files
 
@@ -207,6 +207,7 @@ def run_design(design_or_path, out_dir, *, verify_rigs: bool | None = None, comp
     t = time.perf_counter()
     surface, specimen_file = surface_of(design.specimen, out / "specimen")
     say(f"specimen face: {surface.label}, {len(surface.points_mm)} ROI samples")
+    precheck(design, surface)
     table = pattern_table(design.search.subset_px, design.search.order, contrast=design.specimen.speckle_contrast,
                           seed=design.seed)
     seconds["pattern_table"] = time.perf_counter() - t

@@ -133,6 +133,26 @@ def search(design: DesignInput, surface, table, *, progress=None) -> SearchResul
     return result
 
 
+def precheck(design: DesignInput, surface) -> None:
+    """Refuse, before any work, a face that no camera and lens on offer can see whole at the most favourable allowed
+    geometry (longest distance, smallest stereo angle): :class:`InfeasibleDesignError` with the nearest feasible
+    distance."""
+    c = design.constraints
+    D, angle = c.working_distance_mm[1], c.stereo_angle_deg[0]
+    rejected = []
+    for camera in design.camera:
+        for lens in design.lens:
+            N = f_numbers_of(lens, design.search)[0]
+            try:
+                cand = build_candidate(camera, lens, N, D, angle, tilt=False, tilt_max_deg=0.0)
+                predict(cand, surface, camera, design.lighting, design.search, _NullTable(), speckle_mm=1.0,
+                        depth_range_mm=design.specimen.depth_range_mm)
+                return
+            except (OutOfViewError, ValueError) as err:
+                rejected.append({"label": f"{camera.name} / {lens.name}", "reason": str(err)})
+    raise InfeasibleDesignError(explain_infeasible(design, surface, rejected))
+
+
 def explain_infeasible(design: DesignInput, surface, rejected: list) -> str:
     """The constraint no candidate met and the nearest feasible value (module notes)."""
     reasons = [r["reason"] for r in rejected]
