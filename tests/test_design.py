@@ -251,16 +251,42 @@ def test_design_command_writes_loadable_rigs_and_a_report(tmp_path):
     assert "Rig design" in html and "data:image/png;base64" in html
 
 
+def test_a_hollow_specimen_is_sampled_on_its_near_wall(tmp_path):
+    """A tube (outer radius 30 mm, bore 24 mm, axis along y, near wall at z = 0): every sample lies on the near
+    outer wall, z = R - sqrt(R^2 - x^2) within 0.05 mm (the 256-gon's sagitta is 0.002 mm), with the wall's
+    radial normal within 2 deg -- never on the bore's far wall, whose inner face also looks at the cameras."""
+    import trimesh
+
+    from workbench.design.surface import mesh_surface
+
+    R = 30.0
+    tube = trimesh.creation.annulus(r_min=24.0, r_max=R, height=40.0, sections=256)
+    tube.apply_transform(trimesh.transformations.rotation_matrix(math.pi / 2, [1, 0, 0]))
+    tube.apply_translation((0.0, 0.0, R))
+    path = tmp_path / "tube.stl"
+    tube.export(path)
+    s = mesh_surface(path, roi_mm=(-20.0, -15.0, 20.0, 15.0), samples=(9, 5))
+    x, z = s.points_mm[:, 0], s.points_mm[:, 2]
+    assert len(x) == 45
+    np.testing.assert_allclose(z, R - np.sqrt(R ** 2 - x ** 2), atol=0.05)
+    radial = np.column_stack([x, np.zeros_like(x), z - R]) / R
+    assert np.degrees(np.arccos(np.clip(np.sum(s.normals * radial, axis=1), -1, 1))).max() < 2.0
+    c, n = s.best_plane()
+    np.testing.assert_allclose(n, [0.0, 0.0, -1.0], atol=1e-6)
+
+
 def test_predicted_static_noise_matches_the_rendered_rigs_within_15_percent(tmp_path, table):
     """The design's goal at CI scale: each rig (tilted and untilted, f/4) rendered through the specimen path with
     the design's speckle, exposure and camera noise and measured by the instrument on a static pair: the prediction
-    per component (U, V, W) within 15 % of the measured noise. A prediction off by a factor fails it."""
+    per component (U, V, W) within 15 % of the measured noise. A prediction off by a factor fails it. Four static
+    pairs: one pair's standard deviation over ~1000 overlapping subsets is itself uncertain by ~9 % (1 sigma), four
+    pool it to ~5 %."""
     from workbench.design.geometry import build_candidate
     from workbench.design.predict import predict
     from workbench.design.surface import plane_surface
     from workbench.design.verify import verify
 
-    design = _small_design(verify=VerifyInput(repeats=1))
+    design = _small_design(verify=VerifyInput(repeats=4))
     surface = plane_surface(40.0, 30.0, samples=(7, 5))
     for tilt in (True, False):
         cand = build_candidate(SMALL, design.lens[0], 4.0, 376.0, 23.0, tilt=tilt, tilt_max_deg=10.0)

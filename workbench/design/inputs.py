@@ -155,8 +155,9 @@ class VerifyInput:
     scale: float = _f(1.0, "image resolution of the verification renders relative to the camera's", min=0.05,
                       max=1.0)
     repeats: int = _f(2, "static pairs per rig (fresh sensor noise each)", min=1, max=20)
-    mc_target_grey: float = _f(0.3, "Monte-Carlo noise left in the defocused pixels of a render, grey", min=0.01,
-                               max=5.0)
+    mc_target_grey: float = _f(1.5, "Monte-Carlo noise left in the defocused pixels of a render, grey: a static "
+                                     "pair's two images share the render, so to them it is texture, not noise; "
+                                     "the deformed state's error includes it", min=0.01, max=5.0)
 
 
 @dataclass(frozen=True)

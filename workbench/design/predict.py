@@ -5,8 +5,8 @@ Per ROI sample point and per camera (each point at the reference and at both end
 * **where it is imaged** and how the face maps to the image there (the 2 x 2 Jacobian ``A`` = d pixel / d mm along
   the face's x and y tangents, by central differences of the renderer's projection): the local image scale, the
   speckle's diameter in px (``d sqrt(det A)``) and the foreshortening (``A / sqrt(det A)``);
-* **blur**: the thin lens' defocus circle (:func:`scenes.truth.defocus_blur_px`, diameter ``c``; a uniform disc
-  has sigma ``c / 4``) and diffraction (Airy ~ Gaussian sigma ``0.42 lambda N``), in quadrature;
+* **blur**: the thin lens' defocus circle (:func:`scenes.truth.defocus_blur_px`, a uniform disc of diameter ``c``)
+  and diffraction (Airy ~ Gaussian sigma ``0.42 lambda N``), both tabulated (:mod:`~workbench.design.pattern`);
 * **light**: the image irradiance goes as ``1 / (N (1 + m))^2`` (m: magnification at the face centre); the
   lighting states the mean grey at one f-number; the exposure is cut where the brightest paint would pass
   ``lighting.max_fraction`` of full scale. Noise ``sigma^2 = read^2 + I / gain + 1/12`` (read and shot noise of the
@@ -170,13 +170,13 @@ def predict(candidate: CandidateRig, surface, camera, lighting, search, table: P
         blur = np.stack([defocus_blur_px(candidate.specs[s], *poses[s], X) for s in SIDES], axis=1)
         blur_worst = np.maximum(blur_worst, blur)
         in_focus.append(np.all(blur <= search.in_focus_blur_px, axis=1))
-        sigma_b = np.sqrt((blur / 4.0) ** 2 + diffraction_px ** 2)
+        diffr = np.full(len(X), diffraction_px)
         A = _jacobian(candidate.specs["left"], *poses["left"], X, tx, ty)
         det = np.abs(np.linalg.det(A))
         s_px = d_mm * np.sqrt(det)
         Bm = A / np.sqrt(det)[:, None, None]
-        t_unit = table.covariance(s_px, sigma_b[:, 0])                      # px^2 per grey^2 at E0
-        kappa = table.noise_gain(s_px, sigma_b[:, 0])
+        t_unit = table.covariance(s_px, blur[:, 0], diffr)                  # px^2 per grey^2 at E0
+        kappa = table.noise_gain(s_px, blur[:, 0], diffr)
         C_L = (var * (E0_GREY / E) ** 2 * t_unit)[:, None, None] * (Bm @ np.swapaxes(Bm, 1, 2))
         C_R = C_L * kappa[:, None, None]                                    # same camera, same exposure
         G = triangulation_sensitivity(rig.left, rig.right, rig.R_right_from_left, rig.T_right_from_left_mm, X)
@@ -188,7 +188,7 @@ def predict(candidate: CandidateRig, surface, camera, lighting, search, table: P
             pixels_left = pix["left"]
             speckle_left = s_px
             footprint = 1.0 / np.sqrt(det)
-            mig.append(table.mig(s_px, sigma_b[:, 0]) * E)
+            mig.append(table.mig(s_px, blur[:, 0], diffr) * E)
     slope = window_slope_factor(search.strain_window, search.step_px, search.subset_px)
     spacing_mm = search.step_px * footprint
     strain = 1e6 * 1e-3 * sig[:, :2] * slope / spacing_mm[:, None]      # um / mm -> strain
@@ -208,7 +208,8 @@ def predict(candidate: CandidateRig, surface, camera, lighting, search, table: P
         "footprint_mm_per_px": float(np.mean(footprint)),
         "subset_mm": float(search.subset_px * np.mean(footprint)),
         "vsg_mm": float(((search.strain_window - 1) * search.step_px + search.subset_px) * np.mean(footprint)),
-        "table_extrapolated_fraction": float(np.mean(table.out_of_range(speckle_left, np.zeros_like(speckle_left)))),
+        "table_extrapolated_fraction": float(np.mean(table.out_of_range(speckle_left, blur_worst[:, 0],
+                                                                         np.full(N, diffraction_px)))),
     }
     return Prediction(candidate, sig, strain, blur_worst, speckle_left, footprint, pixels_left, summary)
 

@@ -193,14 +193,14 @@ def explain_infeasible(design: DesignInput, surface, rejected: list) -> str:
 class _NullTable:
     """A pattern table that only answers the field-of-view question (the covariance is not needed there)."""
 
-    def covariance(self, s, b):
+    def covariance(self, s, c, g):
         return np.ones_like(np.asarray(s, float))
 
-    def noise_gain(self, s, b):
+    def noise_gain(self, s, c, g):
         return np.ones_like(np.asarray(s, float))
 
-    def mig(self, s, b):
+    def mig(self, s, c, g):
         return np.ones_like(np.asarray(s, float))
 
-    def out_of_range(self, s, b):
+    def out_of_range(self, s, c, g):
         return np.zeros(np.shape(s), bool)

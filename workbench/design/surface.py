@@ -2,8 +2,9 @@
 
 The face the cameras see is at ``z ~ 0`` facing ``-z`` (every catalog specimen, the beam, a user's mesh as the
 specimen path places it). A plane is sampled on a grid over its ROI; a mesh (a catalog FE result or a user's file,
-read by :func:`scenes.fe_files.read_specimen_file`) by the centroids of its front faces (outer normal within 60 deg
-of ``-z``) nearest to each node of the same grid. A curved face (the pressurised cylinder) keeps its depth: the
+read by :func:`scenes.fe_files.read_specimen_file`) where a ray along ``+z`` through each node of the same grid first
+meets it (what a camera looking along ``+z`` sees there: the near wall of a hollow specimen, never its far one), kept
+where that face is a front face (outer normal within 60 deg of ``-z``). A curved face (the pressurised cylinder) keeps its depth: the
 points' best-fit plane is what a tilted sensor is focused on, the rest is defocus the prediction counts.
 """
 from __future__ import annotations
@@ -96,22 +97,43 @@ def plane_surface(width_mm: float, height_mm: float, roi_mm=None, samples=(13, 9
                    (len(ys), len(xs)), roi, f"plane {width_mm:g} x {height_mm:g} mm", outline)
 
 
-def _face_centroids(mesh) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Centroids, unit outer normals and areas of a surface mesh's faces (from their corner nodes)."""
-    cents, norms, areas = [], [], []
+def _triangles(mesh) -> tuple[np.ndarray, np.ndarray]:
+    """A surface mesh's faces as triangles of their corner nodes, (T, 3, 3) mm, and each triangle's unit outer
+    normal of its face, (T, 3) (quads split along a diagonal)."""
+    tris, norms = [], []
     P = mesh.points_mm
     for conn in mesh.faces.values():
         corners = 4 if conn.shape[1] in (4, 8, 9) else 3
         C = P[conn[:, :corners]]
-        cents.append(C.mean(axis=1))
         if corners == 4:
             n = np.cross(C[:, 2] - C[:, 0], C[:, 3] - C[:, 1])
+            n = n / np.maximum(np.linalg.norm(n, axis=1), 1e-300)[:, None]
+            tris += [C[:, [0, 1, 2]], C[:, [0, 2, 3]]]
+            norms += [n, n]
         else:
             n = np.cross(C[:, 1] - C[:, 0], C[:, 2] - C[:, 0])
-        a = np.linalg.norm(n, axis=1)
-        norms.append(n / np.maximum(a, 1e-300)[:, None])
-        areas.append(a / 2)
-    return np.concatenate(cents), np.concatenate(norms), np.concatenate(areas)
+            tris.append(C)
+            norms.append(n / np.maximum(np.linalg.norm(n, axis=1), 1e-300)[:, None])
+    return np.concatenate(tris), np.concatenate(norms)
+
+
+def first_hit_along_z(triangles: np.ndarray, x: float, y: float) -> tuple[float, int]:
+    """Where the ray ``(x, y, -inf) -> +z`` first meets the triangles: (z mm, triangle index), or (nan, -1)."""
+    a, b, c = triangles[:, 0], triangles[:, 1], triangles[:, 2]
+    # barycentric coordinates of (x, y) in each triangle's x-y projection
+    d = (b[:, 1] - c[:, 1]) * (a[:, 0] - c[:, 0]) + (c[:, 0] - b[:, 0]) * (a[:, 1] - c[:, 1])
+    ok = np.abs(d) > 1e-12                       # a triangle seen edge-on along z has no interior here
+    d = np.where(ok, d, 1.0)
+    l1 = ((b[:, 1] - c[:, 1]) * (x - c[:, 0]) + (c[:, 0] - b[:, 0]) * (y - c[:, 1])) / d
+    l2 = ((c[:, 1] - a[:, 1]) * (x - c[:, 0]) + (a[:, 0] - c[:, 0]) * (y - c[:, 1])) / d
+    l3 = 1.0 - l1 - l2
+    eps = 1e-9
+    hit = ok & (l1 >= -eps) & (l2 >= -eps) & (l3 >= -eps)
+    if not hit.any():
+        return float("nan"), -1
+    z = l1 * a[:, 2] + l2 * b[:, 2] + l3 * c[:, 2]
+    k = int(np.flatnonzero(hit)[np.argmin(z[hit])])
+    return float(z[k]), k
 
 
 def mesh_surface(path, unit: str = "mm", roi_mm=None, samples=(13, 9), label: str = "") -> Surface:
@@ -119,23 +141,21 @@ def mesh_surface(path, unit: str = "mm", roi_mm=None, samples=(13, 9), label: st
     from scenes.fe_files import read_specimen_file
 
     sf = read_specimen_file(path, unit=unit, steps=[0]) if _has_fields(path) else read_specimen_file(path, unit=unit)
-    cents, norms, _ = _face_centroids(sf.mesh)
+    tris, norms = _triangles(sf.mesh)
     front = norms[:, 2] < -np.cos(np.radians(FRONT_ANGLE_DEG))
     if not front.any():
         raise ValueError(f"{path}: no face of the mesh faces the cameras (-z within {FRONT_ANGLE_DEG:g} deg)")
-    cents, norms = cents[front], norms[front]
+    cents = tris[front].mean(axis=1)
     lo, hi = cents[:, :2].min(axis=0), cents[:, :2].max(axis=0)
     roi = tuple(roi_mm) if roi_mm is not None else (lo[0], lo[1], hi[0], hi[1])
     xs, ys = _grid(roi, samples)
     pts, nrm, idx = [], [], []
-    spacing = max((roi[2] - roi[0]) / max(samples[0] - 1, 1), (roi[3] - roi[1]) / max(samples[1] - 1, 1))
     for r, y in enumerate(ys):
         for c, x in enumerate(xs):
-            d = np.hypot(cents[:, 0] - x, cents[:, 1] - y)
-            k = int(np.argmin(d))
-            if d[k] > 0.75 * spacing:           # a hole or beyond the edge: no face here
+            z, k = first_hit_along_z(tris, x, y)
+            if k < 0 or not front[k]:           # a hole, beyond the edge, or a face seen edge-on: no sample
                 continue
-            pts.append([x, y, cents[k, 2]])
+            pts.append([x, y, z])
             nrm.append(norms[k])
             idx.append([c, r])
     if len(pts) < 4:
