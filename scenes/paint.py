@@ -10,7 +10,8 @@ applied:
 * ``"wrapped"``: a printed sheet wrapped on a developable surface keeps its size: on a cylinder (axis point and
   direction given, radius measured from the mesh) ``u`` is the arc length ``r theta`` and ``v`` the position along
   the axis; the seam is put opposite the spray direction (the side the cameras do not see) and the faces across
-  it stay unpainted. On a plane, wrapping is spraying along its normal.
+  it stay unpainted, as do faces turned more than ``max_angle_deg`` from the spray (the sheet covers the side the
+  cameras see). On a plane, wrapping is spraying along its normal.
 
 Unpainted faces keep a plain ``base_grey``. Textures are bilinear speckle (:func:`scenes.speckle.speckle_pattern`)
 or a sharp-edged checker (``"nearest"``: rendered exactly by polygon coverage).
@@ -236,7 +237,9 @@ def layout(paint: Paint, vertices_mm: np.ndarray, triangles: np.ndarray, source:
         tri_theta = theta[T]
         seam = np.radians(180.0 - paint.seam_margin_deg)
         across = (np.ptp(tri_theta, axis=1) > np.pi) | (np.abs(tri_theta).max(axis=1) > seam)
-        painted = lateral & ~across & (area2 > 0)
+        # and, as sprayed paint, only faces within max_angle_deg of the cameras' side: a whole tube's sheet at fine
+        # speckles would be a texture too large to hold, for faces no camera measures
+        painted = lateral & ~across & (area2 > 0) & (facing >= np.cos(np.radians(paint.max_angle_deg)))
         if not painted.any():
             raise ValueError(f"{source}: no face of the mesh lies on the side of the cylinder around the given axis")
         radius = float(np.median(rho[np.unique(T[painted])]))

@@ -226,6 +226,21 @@ def test_wrapped_cylinder_paint_is_arc_length():
     assert np.abs(theta).max() < np.radians(171)
 
 
+def test_wrapped_cylinder_paint_covers_only_faces_within_max_angle():
+    """max_angle_deg 50: the painted faces are exactly those whose centre lies within 50 deg of -direction round
+    the axis (analytic: a face's outer normal on a cylinder is its centre's radial direction)."""
+    cyl = trimesh.creation.cylinder(radius=57.0, height=40.0, sections=180)
+    lay = layout(Paint(method="wrapped", axis_point_mm=(0, 0, 0), axis_direction=(0, 0, 1), direction=(0, 1, 0),
+                       max_angle_deg=50.0), cyl.vertices, cyl.faces)
+    centre = cyl.vertices[cyl.faces].mean(axis=1)
+    side = np.abs(cyl.face_normals[:, 2]) < 1e-9                 # the lateral faces, not the end caps
+    angle = np.degrees(np.arctan2(np.abs(centre[:, 0]), -centre[:, 1]))
+    expected = side & (angle < 50.0 - 1.0)
+    assert lay.painted[expected].all()
+    assert not lay.painted[side & (angle > 50.0 + 1.0)].any()
+    assert not lay.painted[~side].any()
+
+
 # ------------------------------------------------------------------------------------------------------------
 def _camera(scale=0.1):
     from workbench.experiments.calibration.views import sensor_spec_for
