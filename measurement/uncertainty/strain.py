@@ -179,11 +179,34 @@ def pair_covariances(reference: PreparedImage, subsets: ReferenceSubsets, grid_i
     return PairCovariances(reach, rho, D, index, int(chosen.size), overlap)
 
 
+@numba.njit(cache=True)
+def _symmetric_kernel(rho):
+    """``S(d) = rho(d) + rho(-d)^T`` over the offsets (rows, cols, 2, 2): a pair's two terms of the double sum in one
+    (``b_p^T C_pq b_q + b_q^T C_qp b_p`` with ``C_pq = D_p rho(q - p) D_q``); an unknown correlation counts 0, NaN
+    where both are unknown."""
+    n0, n1 = rho.shape[0], rho.shape[1]
+    S = np.full(rho.shape, np.nan)
+    for a in range(n0):
+        for b in range(n1):
+            f = rho[a, b]
+            g = rho[n0 - 1 - a, n1 - 1 - b]
+            if np.isfinite(f[0, 0]) or np.isfinite(g[0, 0]):
+                for u in range(2):
+                    for v in range(2):
+                        S[a, b, u, v] = ((f[u, v] if np.isfinite(f[0, 0]) else 0.0)
+                                         + (g[v, u] if np.isfinite(g[0, 0]) else 0.0))
+    return S
+
+
 @numba.njit(cache=True, parallel=True)
 def _strain_variance(index, X, e1g, e2g, node_ok, r, quadratic, rho, D, reach, M, scale, out):
+    # var E = sum_images sum_p sum_q g_p^T rho(q - p) g_q with g = D * b (each point's weights times its own
+    # standard deviations); the double sum runs over unordered pairs with the symmetrised kernel, so every pair's
+    # kernel is looked up once for all images and components
     n_rows, n_cols = index.shape
     n_img = M.shape[0]
     nb = 6 if quadratic else 3
+    S = _symmetric_kernel(rho)
     for node in numba.prange(n_rows * n_cols):
         i0, j0 = node // n_cols, node % n_cols
         out[i0, j0, 0] = out[i0, j0, 1] = out[i0, j0, 2] = np.nan
@@ -228,38 +251,46 @@ def _strain_variance(index, X, e1g, e2g, node_ok, r, quadratic, rho, D, reach, M
         weights = np.linalg.solve(normal, phi.T)     # (nb, n): rows 1 and 2 are d/dxi, d/deta at the node
         w1 = weights[1]
         w2 = weights[2]
-        var = np.zeros(3)
-        beta = np.empty((3, n, 2))
-        for img in range(n_img):
-            for k in range(n):
-                p = pts[k]
+        g = np.empty((n, n_img, 3, 2))                 # per point, image, component: D * b
+        for k in range(n):
+            p = pts[k]
+            for img in range(n_img):
                 t1x = e1[0] * M[img, p, 0, 0] + e1[1] * M[img, p, 1, 0] + e1[2] * M[img, p, 2, 0]
                 t1y = e1[0] * M[img, p, 0, 1] + e1[1] * M[img, p, 1, 1] + e1[2] * M[img, p, 2, 1]
                 t2x = e2[0] * M[img, p, 0, 0] + e2[1] * M[img, p, 1, 0] + e2[2] * M[img, p, 2, 0]
                 t2y = e2[0] * M[img, p, 0, 1] + e2[1] * M[img, p, 1, 1] + e2[2] * M[img, p, 2, 1]
-                s = np.sqrt(scale[img, p])
-                beta[0, k, 0], beta[0, k, 1] = s * w1[k] * t1x, s * w1[k] * t1y
-                beta[1, k, 0], beta[1, k, 1] = s * w2[k] * t2x, s * w2[k] * t2y
-                beta[2, k, 0] = 0.5 * s * (w2[k] * t1x + w1[k] * t2x)
-                beta[2, k, 1] = 0.5 * s * (w2[k] * t1y + w1[k] * t2y)
+                sx = np.sqrt(scale[img, p]) * D[p, 0]
+                sy = np.sqrt(scale[img, p]) * D[p, 1]
+                g[k, img, 0, 0], g[k, img, 0, 1] = sx * w1[k] * t1x, sy * w1[k] * t1y
+                g[k, img, 1, 0], g[k, img, 1, 1] = sx * w2[k] * t2x, sy * w2[k] * t2y
+                g[k, img, 2, 0] = 0.5 * sx * (w2[k] * t1x + w1[k] * t2x)
+                g[k, img, 2, 1] = 0.5 * sy * (w2[k] * t1y + w1[k] * t2y)
+        var = np.zeros(3)
+        r0 = rho[reach, reach]
+        if np.isfinite(r0[0, 0]):
             for k in range(n):
-                p = pts[k]
-                for l in range(n):
-                    a = di_[l] - di_[k]
-                    b = dj_[l] - dj_[k]
-                    if a < -reach or a > reach or b < -reach or b > reach:
-                        continue
-                    rr = rho[a + reach, b + reach]
-                    if not np.isfinite(rr[0, 0]):
-                        continue
-                    q = pts[l]
-                    c00 = D[p, 0] * rr[0, 0] * D[q, 0]
-                    c01 = D[p, 0] * rr[0, 1] * D[q, 1]
-                    c10 = D[p, 1] * rr[1, 0] * D[q, 0]
-                    c11 = D[p, 1] * rr[1, 1] * D[q, 1]
+                for img in range(n_img):
                     for comp in range(3):
-                        var[comp] += (beta[comp, k, 0] * (c00 * beta[comp, l, 0] + c01 * beta[comp, l, 1])
-                                      + beta[comp, k, 1] * (c10 * beta[comp, l, 0] + c11 * beta[comp, l, 1]))
+                        x = g[k, img, comp, 0]
+                        y = g[k, img, comp, 1]
+                        var[comp] += x * (r0[0, 0] * x + r0[0, 1] * y) + y * (r0[1, 0] * x + r0[1, 1] * y)
+        for k in range(n):
+            for l in range(k + 1, n):
+                a = di_[l] - di_[k]
+                b = dj_[l] - dj_[k]
+                if a < -reach or a > reach or b < -reach or b > reach:
+                    continue
+                s = S[a + reach, b + reach]
+                if not np.isfinite(s[0, 0]):
+                    continue
+                s00, s01, s10, s11 = s[0, 0], s[0, 1], s[1, 0], s[1, 1]
+                for img in range(n_img):
+                    for comp in range(3):
+                        x = g[k, img, comp, 0]
+                        y = g[k, img, comp, 1]
+                        u = g[l, img, comp, 0]
+                        v = g[l, img, comp, 1]
+                        var[comp] += x * (s00 * u + s01 * v) + y * (s10 * u + s11 * v)
         for comp in range(3):
             out[i0, j0, comp] = np.sqrt(max(var[comp], 0.0))
 
