@@ -9,7 +9,7 @@ pixel) at a fixed exposure ``E0`` and the instrument's own estimator,
 :func:`measurement.uncertainty.match.reference_subsets` (the IC-GN Hessian and the image noise), gives the
 covariance of (u, v) per unit noise variance, averaged over the image's subsets. One table per subset size, shape
 function order and paint; the designer reads it at each ROI point of each candidate (trilinear in log s, c, g) and
-scales it by the candidate's noise and exposure: ``Cov = sigma_n^2 (E0 / E)^2 T(s, b)`` (the Hessian grows with the
+scales it by the candidate's noise and exposure: ``Cov = sigma_n^2 (E0 / E)^2 T(s, c, g)`` (the Hessian grows with the
 square of the exposure, the noise term with the noise variance). Also tabulated: the interpolant's mean noise gain
 ``kappa`` over sub-pixel phases (what a target image sampled at a random phase adds, relative to whole pixels) and
 the mean intensity gradient (MIG, Pan et al. 2010) per unit exposure.
@@ -161,7 +161,7 @@ def paint_images(speckle_px: float, blurs, size_px: int, *, contrast: float = 0.
 def pattern_table(subset_px: int, order: int, *, contrast: float = 0.8, density: float = 0.5,
                   interpolation: str = "biquintic", seed: int = 0, speckle_px=SPECKLE_PX, defocus_px=DEFOCUS_PX,
                   diffraction_px=DIFFRACTION_PX) -> PatternTable:
-    """Tabulate the instrument's match covariance on the paint (module notes); some 20 s per table on 2 cores."""
+    """Tabulate the instrument's match covariance on the paint (module notes); ~30 s per table on 2 cores."""
     unit = NoiseModel(sigma_grey=1.0, read_noise_grey=1.0, electrons_per_grey=None, source="design: unit noise")
     half = subset_px // 2
     shape = (len(speckle_px), len(defocus_px), len(diffraction_px))
