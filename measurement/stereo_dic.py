@@ -340,6 +340,9 @@ class StereoShape:
     calibration_G_ref: np.ndarray | None = field(default=None, repr=False)
     #: Triangulation sensitivity at the reference points (N, 3, 4) mm/px (:mod:`measurement.uncertainty.stereo`).
     G_ref: np.ndarray | None = field(default=None, repr=False)
+    #: The right reference image, prepared as the stereo match sampled it: the stereo match's uncertainty needs
+    #: what the right camera sees (its blur and scale, :func:`measurement.uncertainty.match.cross_hessians`).
+    right_reference: PreparedImage | None = field(default=None, repr=False)
 
 
 @dataclass
@@ -459,6 +462,8 @@ def reference_shape(left: ScheimpflugCamera, right: ScheimpflugCamera, R_right_f
                          max_median_residual_px=max_median_residual_px, min_measured_fraction=min_measured_fraction)
     shape = StereoShape(match.x, match.y, match, tri.X_left_mm, tri.reprojection_error_px, valid, grid, prepared,
                         features, quality, auto_roi, None if auto_roi is None else measure_grid, sigma, report)
+    shape.right_reference = prepare_image(right_ref, settings.interpolation, False, "right reference",
+                                          settings.lowpass_sigma_px)
     if uncertainty:
         shape_uncertainty(shape, left, right, R_right_from_left, T_right_from_left_mm, settings, noise)
     return shape
@@ -491,7 +496,9 @@ def shape_uncertainty(shape: StereoShape, left, right, R, T, settings: DICSettin
         noise = {"left": model, "right": model}
     subsets = reference_subsets(shape.reference, shape.x, shape.y, settings.subset_size, settings.order,
                                 noise["left"], settings.interpolation, gains=gains)
-    unc = match_uncertainty(subsets, shape.right_match, noise["right"])
+    # the stereo match's cross terms, kept: the right camera's states reuse them where they strain little
+    unc = match_uncertainty(subsets, shape.right_match, noise["right"], target=shape.right_reference,
+                            keep_cross=shape.right_reference is not None)
     G = triangulation_sensitivity(left, right, R, T, shape.X_mm)
     shape.subsets, shape.match_uncertainty, shape.noise = subsets, unc, noise
     shape.cov_X_mm2 = shape_covariance_mm2(G, unc.cov_reference_px2, unc.cov_target_px2)
@@ -563,19 +570,25 @@ def measure_state(left: ScheimpflugCamera, right: ScheimpflugCamera, R_right_fro
     state = StereoState(X, U, np.linalg.norm(U, axis=1), residual, np.where(ok, zncc, np.nan), status, left_match,
                         right_match, quality, report)
     if shape.subsets is not None:
-        _state_uncertainty(state, shape, left, right, R_right_from_left, T_right_from_left_mm)
+        _state_uncertainty(state, shape, left, right, R_right_from_left, T_right_from_left_mm, left_def, right_def)
     return state
 
 
-def _state_uncertainty(state: StereoState, shape: StereoShape, left, right, R, T) -> None:
-    """Fill the state's uncertainty fields (see :class:`StereoState`)."""
-    lu = match_uncertainty(shape.subsets, state.left_match, shape.noise["left"])
-    ru = match_uncertainty(shape.subsets, state.right_match, shape.noise["right"])
+def _state_uncertainty(state: StereoState, shape: StereoShape, left, right, R, T, left_def, right_def) -> None:
+    """Fill the state's uncertainty fields (see :class:`StereoState`): each match's cross terms from its own
+    target where it strains away from what they were known for (the left reference's own view, the stereo
+    match's), reused elsewhere."""
+    su = shape.match_uncertainty
+    lu = match_uncertainty(shape.subsets, state.left_match, shape.noise["left"], target=left_def,
+                           like=shape.subsets)
+    with_cross = su.cross is not None
+    ru = match_uncertainty(shape.subsets, state.right_match, shape.noise["right"],
+                           target=right_def if with_cross else None, like=su if with_cross else None)
     G_ref = shape.G_ref if shape.G_ref is not None else triangulation_sensitivity(left, right, R, T, shape.X_mm)
     G_def = triangulation_sensitivity(left, right, R, T, state.X_mm)
-    su = shape.match_uncertainty
     cov_X, cov_U = state_covariances_mm2(G_ref, G_def, su.cov_reference_px2, su.cov_target_px2,
-                                         lu.cov_target_px2, ru.cov_target_px2)
+                                         lu.cov_target_px2, ru.cov_target_px2,
+                                         factors=(su.reference_factor, lu.reference_factor, ru.reference_factor))
     flag = np.full(state.X_mm.shape[0], FLAG_NONE, dtype=np.int8)
     for unc in (ru, lu, su):
         hit = (flag == FLAG_NONE) & ((unc.flag == FLAG_RESIDUAL) | (unc.flag == FLAG_SATURATED))

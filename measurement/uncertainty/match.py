@@ -14,13 +14,38 @@ the ratio of noise to texture in the gradients (10 % at 5 grey on a 4 px speckle
 
 * The **reference part** ``H0^-1 J^T S_f J H0^-1`` comes from the reference image's noise at its own pixels: every
   match of that reference subset (the stereo match and every temporal match) shares it, which is why it is kept
-  apart (:attr:`MatchUncertainty.cov_reference_px2`).
+  apart (:attr:`MatchUncertainty.cov_reference_px2`, and the factor ``F`` with ``F F^T`` = it,
+  :attr:`MatchUncertainty.reference_factor`, from which two matches' shared part follows).
 * The **target part** is the same form with the target's noise, ``S_g = sigma_g^2(I)``, passed through the
   interpolant: at sub-pixel phase ``t`` the interpolated noise is white noise filtered by the cardinal spline
   shifted by ``t``, whose gain on the subset's gradient spectrum ``kappa(t) <= 1`` (1 at whole pixels; for
   biquintic on 3 px speckle 0.98 at half a pixel along the gradient's axis, while white noise -- what the residual
   sees -- drops to 0.84 per axis, 0.70 at (0.5, 0.5)) is read from a table of the reference image's gradient
   spectrum (:func:`interpolation_noise_gain`) and averaged over the warped subset.
+
+**When the target is not a repeat of the reference's view** -- the other camera of a stereo rig, which sees the
+speckle blurred, foreshortened or magnified differently, or a strongly strained state -- ``H0`` is the wrong
+sensitivity. Linearising the converged condition in the match's own terms (:func:`cross_hessians`, with the target
+image):
+
+* the Hessian is the **cross-Hessian** ``M = (Df / Dg) sum J (G - G_m)^T``, ``G = grad g(W(x)) . dW/dp`` the
+  target's gradients at the warped positions: a target blurred more than the reference has less gradient energy,
+  so the match moves more (its expectation over the noise needs no noise correction: J and G hold independent
+  noises);
+* the reference's noise enters through ``J n_f + (grad n_f) r``: where the target's texture differs from the
+  reference's the residual ``r`` is not noise, and summation by parts turns the two into
+  ``(Df / Dg) K n_f``, ``K = grad(g o W)`` pulled back to the reference frame (its weight
+  ``W = (Df / Dg)^2 sum S_f K K^T``; for a repeat ``K = J``);
+* the target's noise enters through ``J``, scaled by ``Df / Dg``, at the target's own pixel density: a subset the
+  warp ``A = dW/dx`` spreads over ``|det A|`` target pixels sees ``1 / |det A|`` of the noise power per reference
+  pixel (sigma of u goes as the target's scale).
+
+So ``Cov = M^-1 [W + (Df / Dg)^2 kappa / |det A| J^T S_g J] M^-T``. Measured on exact speckle pairs (36 noise
+draws; ``tests/test_match_uncertainty.py``): a target blurred by a 1 px Gaussian on 4 px speckle moves u 1.6 times
+what ``H0`` says, a 1.5 px one 2.7 times; the target scaled by 0.8 (1.25) 0.85 (1.23) times; with ``M`` every
+case's std(error / sigma) is 0.96-1.03. The sums run over every ``stride``-th row and column of a large subset
+(:func:`cross_stride`); a later match of the same camera reuses the known terms where its warp strains by less
+than :data:`CROSS_REUSE_TOLERANCE` (``like=`` of :func:`match_uncertainty`). Without a target image ``M = H0``.
 
 Noise: a :class:`~measurement.speckle_quality.NoiseModel` per image (``sigma^2(I) = read^2 + I / gain``), from a
 static pair (measured) when the user has one; otherwise :func:`noise_from_residuals` fits it to the matches' own
@@ -41,8 +66,9 @@ import numba
 import numpy as np
 
 from measurement.dic import bspline
+from measurement.dic.bspline import evaluate_point
 from measurement.dic.correlate import DICResult, PreparedImage, prepare_image
-from measurement.dic.icgn import prepare_reference
+from measurement.dic.icgn import _MONOMIALS, prepare_reference
 from measurement.dic.status import CONVERGED
 from measurement.speckle_quality import NoiseModel
 
@@ -245,6 +271,149 @@ def _hessians(image, grad_x, grad_y, weighted_gx, weighted_gy, xs, ys, half, ord
         ok_out[k] = True
 
 
+@numba.njit(cache=True, inline="always", fastmath=True)
+def _spline_value_gradient(coefficients, degree, x, y, wx, wy, dwx, dwy):
+    """(ok, g, g_x, g_y) of the B-spline interpolant at (x, y), with caller-owned weight buffers (no allocation)."""
+    rows, cols = coefficients.shape
+    lo, hi = (1, 2) if degree == 3 else (2, 3)
+    if not (x >= lo and y >= lo and x < cols - hi and y < rows - hi):
+        return False, 0.0, 0.0, 0.0
+    ix = int(x)
+    iy = int(y)
+    tx = x - ix
+    ty = y - iy
+    if degree == 3:
+        wx[0], wx[1], wx[2], wx[3] = bspline.cubic_weights(tx)
+        wy[0], wy[1], wy[2], wy[3] = bspline.cubic_weights(ty)
+        bspline.cubic_weight_derivatives(tx, dwx)
+        bspline.cubic_weight_derivatives(ty, dwy)
+    else:
+        wx[0], wx[1], wx[2], wx[3], wx[4], wx[5] = bspline.quintic_weights(tx)
+        wy[0], wy[1], wy[2], wy[3], wy[4], wy[5] = bspline.quintic_weights(ty)
+        bspline.quintic_weight_derivatives(tx, dwx)
+        bspline.quintic_weight_derivatives(ty, dwy)
+    value = 0.0
+    gx = 0.0
+    gy = 0.0
+    for i in range(degree + 1):
+        row_value = 0.0
+        row_dx = 0.0
+        for j in range(degree + 1):
+            c = coefficients[iy - lo + i, ix - lo + j]
+            row_value += c * wx[j]
+            row_dx += c * dwx[j]
+        value += wy[i] * row_value
+        gx += wy[i] * row_dx
+        gy += dwy[i] * row_value
+    return True, value, gx, gy
+
+
+@numba.njit(cache=True, parallel=True, fastmath=True)
+def _cross_moments(ref_gx, ref_gy, variance, coefficients, degree, xs, ys, parameters, half, order, stride, out,
+                   ok_out):
+    """Per subset, the sums :func:`cross_hessians` needs, from the reference gradients and noise variance at its
+    pixels (every ``stride``-th row and column) and the target interpolant's value and gradient at their warped
+    positions.
+
+    out (N, 4 + 7 P2 + 4 P1): [sum g, sum g^2, count, 0]; per moment ``dx^a dy^b`` (a + b <= 2 order, P2 of them)
+    the sums of f_x g_x, f_x g_y, f_y g_x, f_y g_y times it; per such moment the sums of var k_x k_x, var k_x k_y,
+    var k_y k_y (``k = grad (g o W)`` in the reference frame, ``var`` the reference noise variance) times it; per
+    moment a + b <= order (P1) the sums of f_x, f_y, g_x, g_y times it. Each row accumulates its sums by powers of
+    dx alone; the powers of dy enter once per row."""
+    deg2 = 2 * order
+    k_base = 4 + 4 * ((deg2 + 1) * (deg2 + 2) // 2)
+    first_base = k_base + 3 * ((deg2 + 1) * (deg2 + 2) // 2)
+    for k in numba.prange(xs.size):
+        wx = np.empty(6)
+        wy = np.empty(6)
+        dwx = np.empty(6)
+        dwy = np.empty(6)
+        row2 = np.empty((7, deg2 + 1))
+        row1 = np.empty((4, order + 1))
+        acc = np.zeros(out.shape[1])
+        p = parameters[k]
+        good = True
+        for r in range(-half, half + 1, stride):
+            dy = float(r)
+            row2[:] = 0.0
+            row1[:] = 0.0
+            s0 = 0.0
+            s1 = 0.0
+            cnt = 0.0
+            # the warp along this row: u, v and the pull-back's entries are polynomials in dx
+            u0 = p[0] + p[2] * dy + 0.5 * p[5] * dy * dy
+            u1 = p[1] + p[4] * dy
+            v0 = p[6] + p[8] * dy + 0.5 * p[11] * dy * dy
+            v1 = p[7] + p[10] * dy
+            for c in range(-half, half + 1, stride):
+                dx = float(c)
+                u = u0 + u1 * dx + 0.5 * p[3] * dx * dx
+                v = v0 + v1 * dx + 0.5 * p[9] * dx * dx
+                ok, g, gx, gy = _spline_value_gradient(coefficients, degree, xs[k] + dx + u, ys[k] + dy + v,
+                                                       wx, wy, dwx, dwy)
+                if not ok:
+                    good = False
+                    break
+                fx = ref_gx[ys[k] + r, xs[k] + c]
+                fy = ref_gy[ys[k] + r, xs[k] + c]
+                var = variance[ys[k] + r, xs[k] + c]
+                kx = gx * (1.0 + p[1] + p[3] * dx + p[4] * dy) + gy * (p[7] + p[9] * dx + p[10] * dy)
+                ky = gx * (p[2] + p[4] * dx + p[5] * dy) + gy * (1.0 + p[8] + p[10] * dx + p[11] * dy)
+                s0 += g
+                s1 += g * g
+                cnt += 1.0
+                q0 = fx * gx
+                q1 = fx * gy
+                q2 = fy * gx
+                q3 = fy * gy
+                w0 = var * kx * kx
+                w1 = var * kx * ky
+                w2 = var * ky * ky
+                pa = 1.0
+                for a in range(deg2 + 1):
+                    row2[0, a] += q0 * pa
+                    row2[1, a] += q1 * pa
+                    row2[2, a] += q2 * pa
+                    row2[3, a] += q3 * pa
+                    row2[4, a] += w0 * pa
+                    row2[5, a] += w1 * pa
+                    row2[6, a] += w2 * pa
+                    if a <= order:
+                        row1[0, a] += fx * pa
+                        row1[1, a] += fy * pa
+                        row1[2, a] += gx * pa
+                        row1[3, a] += gy * pa
+                    pa *= dx
+            if not good:
+                break
+            acc[0] += s0
+            acc[1] += s1
+            acc[2] += cnt
+            slot = 0
+            for a in range(deg2 + 1):
+                pb = 1.0
+                for b in range(deg2 + 1 - a):
+                    for q in range(4):
+                        acc[4 + 4 * slot + q] += row2[q, a] * pb
+                    for q in range(3):
+                        acc[k_base + 3 * slot + q] += row2[4 + q, a] * pb
+                    slot += 1
+                    pb *= dy
+            m = 0
+            for a in range(order + 1):
+                pb = 1.0
+                for b in range(order + 1 - a):
+                    for q in range(4):
+                        acc[first_base + 4 * m + q] += row1[q, a] * pb
+                    m += 1
+                    pb *= dy
+        ok_out[k] = good
+        if good:
+            area = float(stride * stride)
+            for q in range(out.shape[1]):
+                out[k, q] = acc[q] * area
+
+
 #: Least fraction of a subset's gradient information (along its worst shape-parameter direction) that must be
 #: texture rather than noise for its sigma to be given (below it: FLAG_SINGULAR, NaN).
 MIN_SIGNAL_FRACTION = 0.2
@@ -277,6 +446,17 @@ def _scaled_inverse(m: np.ndarray) -> np.ndarray:
     d = 1.0 / np.sqrt(np.abs(np.einsum("kii->ki", m)))
     scaled = m * d[:, :, None] * d[:, None, :]
     return np.linalg.inv(scaled) * d[:, :, None] * d[:, None, :]
+
+
+def _sqrtm(m: np.ndarray) -> np.ndarray:
+    """Symmetric square roots of a batch (N, n, n) of symmetric positive semi-definite matrices."""
+    d = np.sqrt(np.abs(np.einsum("kii->ki", m)))
+    d = np.where(d > 0, d, 1.0)
+    scaled = m / d[:, :, None] / d[:, None, :]
+    w, v = np.linalg.eigh(scaled)
+    root = (v * np.sqrt(np.clip(w, 0.0, None))[:, None, :]) @ np.swapaxes(v, 1, 2)
+    # (D S D)^1/2 is not D S^1/2 D; a congruence keeps the factor property: (D R)(D R)^T = D S D
+    return d[:, :, None] * root
 
 
 def _monomial_moments(half: int, order: int) -> np.ndarray:
@@ -312,6 +492,15 @@ class ReferenceSubsets:
     subset_size, order : int
     gains : NoiseGainTable
     noise_reference : NoiseModel
+    weighted_hessian : ndarray (N, np, np)
+        ``J^T S_f J``: the reference noise's covariance of the normal equations' right side, grey^2 x Hessian.
+    reference : PreparedImage or None
+        The reference image with its gradients (the cross-Hessian of a match needs them).
+    inverse : ndarray (N, np, np)
+        ``H0^-1``.
+    reference_factor : ndarray (N, 2, np)
+        ``uv_rows (J^T S_f J)^1/2``: the reference noise's effect on (u, v) of a match that repeats the reference's
+        view (:attr:`MatchUncertainty.reference_factor`).
     """
 
     x: np.ndarray
@@ -328,6 +517,10 @@ class ReferenceSubsets:
     order: int = 1
     gains: NoiseGainTable | None = field(default=None, repr=False)
     noise_reference: NoiseModel | None = None
+    weighted_hessian: np.ndarray | None = field(default=None, repr=False)
+    reference: PreparedImage | None = field(default=None, repr=False)
+    inverse: np.ndarray | None = field(default=None, repr=False)
+    reference_factor: np.ndarray | None = field(default=None, repr=False)
 
     @property
     def n_parameters(self) -> int:
@@ -383,6 +576,9 @@ def reference_subsets(reference, x_px, y_px, subset_size: int, order: int, noise
     clipped = _box_mean(_clipped_pixels(values).astype(np.float64), xs, ys, half) > MAX_CLIPPED_FRACTION
     ok &= ~clipped
     cov_uv = np.full((xs.size, 2, 2), np.nan)
+    weighted = np.full((xs.size, npar, npar), np.nan)
+    inverse = np.full((xs.size, npar, npar), np.nan)
+    factor = np.full((xs.size, 2, npar), np.nan)
     var_all = np.full((xs.size, npar), np.nan)
     uv_rows = np.full((xs.size, 2, npar), np.nan)
     if ok.any():
@@ -402,6 +598,9 @@ def reference_subsets(reference, x_px, y_px, subset_size: int, order: int, noise
         good = idx[eig_ok]
         inv0 = _scaled_inverse(h0[eig_ok])
         cov = inv0 @ hw[eig_ok] @ inv0
+        weighted[good] = hw[eig_ok]
+        inverse[good] = inv0
+        factor[good] = inv0[:, [0, nm], :] @ _sqrtm(hw[eig_ok])
         cov_uv[good] = cov[:, [0, nm]][:, :, [0, nm]]
         var_all[good] = np.einsum("kii->ki", cov)
         uv_rows[good] = inv0[:, [0, nm], :]
@@ -412,7 +611,7 @@ def reference_subsets(reference, x_px, y_px, subset_size: int, order: int, noise
         gains = interpolation_noise_gain(values, degree, box=box)
     return ReferenceSubsets(xs, ys, cov_uv, var_all, uv_rows, mean_grey, mean_var, delta_f, ok, clipped,
                             int(subset_size), int(order),
-                            gains, noise_reference)
+                            gains, noise_reference, weighted, prepared, inverse, factor)
 
 
 def _clipped_pixels(values: np.ndarray) -> np.ndarray:
@@ -483,6 +682,13 @@ class MatchUncertainty:
     misfit_bias_px : ndarray (N, 2) or None
         Estimated (signed) error of u and v from the shape function's misfit, px
         (:mod:`measurement.uncertainty.misfit`): systematic, like the bias bound; None when not computed.
+    reference_factor : ndarray (N, 2, np) or None
+        ``F`` with ``F F^T`` = the reference noise's part of (u, v), ``F = (M^-1)_uv W^1/2``: two matches of one
+        reference subset share ``F_1 F_2^T`` of it (exact when their weights ``W`` are proportional: the
+        stereo covariances, :mod:`measurement.uncertainty.stereo`).
+    cross : CrossTerms or None
+        This match's cross-Hessian terms, kept (``keep_cross``) for later matches to reuse
+        (``like=`` of :func:`match_uncertainty`).
     """
 
     sigma_u_px: np.ndarray
@@ -497,6 +703,8 @@ class MatchUncertainty:
     noise_target: NoiseModel | None = None
     bias_bound_px: np.ndarray | None = field(default=None, repr=False)
     misfit_bias_px: np.ndarray | None = field(default=None, repr=False)
+    reference_factor: np.ndarray | None = field(default=None, repr=False)
+    cross: "CrossTerms | None" = field(default=None, repr=False)
 
     @property
     def trusted(self) -> np.ndarray:
@@ -524,6 +732,134 @@ class MatchUncertainty:
                 "noise_source": self.noise_source}
 
 
+
+#: Fewest subset pixels the cross-Hessian's sums sample: a larger subset is sampled every ``stride``-th row and
+#: column (:func:`cross_stride`), its sums scaled by ``stride^2``.
+CROSS_MIN_SAMPLES = 900
+
+
+def cross_stride(subset_size: int) -> int:
+    """Row and column step of the cross-Hessian's sums over a subset of ``subset_size`` px: the largest that keeps
+    at least :data:`CROSS_MIN_SAMPLES` pixels (1 up to 59 px, 2 for the paper's 65 px)."""
+    stride = 1
+    while ((subset_size + stride) // (stride + 1)) ** 2 >= CROSS_MIN_SAMPLES:
+        stride += 1
+    return stride
+
+
+def _moment_slots(order: int) -> tuple[dict, dict]:
+    """Slots of :func:`_cross_moments`' table: ``(a, b) -> k`` for ``dx^a dy^b``, a + b <= 2 order (products of
+    two monomials) and a + b <= order (the monomials), in the kernel's loop order."""
+    second, first = {}, {}
+    for a in range(2 * order + 1):
+        for b in range(2 * order + 1 - a):
+            second[(a, b)] = len(second)
+    for a in range(order + 1):
+        for b in range(order + 1 - a):
+            first[(a, b)] = len(first)
+    return second, first
+
+
+def cross_hessians(subsets: ReferenceSubsets, target: PreparedImage, parameters: np.ndarray, *,
+                   points: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray,
+                                                               np.ndarray]:
+    """The match's cross-Hessian ``M = (Df / Dg) sum J (G - G_m)^T`` per subset, from the reference gradients ``J``
+    at its pixels and the target interpolant's gradients ``G = grad g(W(x)) . dW/dp`` at their converged warped
+    positions (the module notes say why ``M`` and not ``H``).
+
+    Parameters
+    ----------
+    subsets : ReferenceSubsets (with its ``reference``)
+    target : PreparedImage
+        The target image of the match.
+    parameters : ndarray (N, 12)
+        The match's converged shape parameters.
+    points : array of int, optional
+        Only these of the N points (the outputs are then over them).
+
+    Returns
+    -------
+    M : ndarray (N, np, np)
+    reference_weight : ndarray (N, np, np)
+        ``(Df / Dg)^2 sum var_f K K^T``, ``K = grad (g o W) . dm`` in the reference frame: how the reference's noise
+        reaches the normal equations once the match has converged on a target that differs from it (module notes).
+    contrast_ratio : ndarray (N,)
+        ``Df / Dg``: the reference subset's grey-level spread over the target's.
+    mean_target : ndarray (N,)
+        The warped target subset's mean grey level.
+    ok : ndarray of bool (N,)
+        False where the warped subset leaves the target (or the parameters are not finite).
+    """
+    if subsets.reference is None:
+        raise ValueError("these reference subsets keep no reference image: the cross-Hessian needs its gradients")
+    order = subsets.order
+    half = subsets.subset_size // 2
+    nm = 3 if order == 1 else 6
+    second, first = _moment_slots(order)
+    points = np.arange(subsets.x.size) if points is None else np.asarray(points, dtype=np.int64)
+    n = points.size
+    table = np.full((n, 4 + 7 * len(second) + 4 * len(first)), np.nan)
+    ok = np.zeros(n, dtype=np.bool_)
+    p = np.ascontiguousarray(np.asarray(parameters, dtype=np.float64)[points])
+    xs, ys = subsets.x[points], subsets.y[points]
+    finite = np.all(np.isfinite(p), axis=1)
+    idx = np.flatnonzero(finite)
+    sub_table = np.full((idx.size, table.shape[1]), np.nan)
+    sub_ok = np.zeros(idx.size, dtype=np.bool_)
+    reference = subsets.reference.spline
+    values = subsets.reference.values
+    variance = subsets.noise_reference.sigma_at(np.where(np.isfinite(values), values, 0.0)) ** 2
+    _cross_moments(reference.grad_x, reference.grad_y, np.ascontiguousarray(variance), target.spline.coefficients,
+                   int(target.spline.degree), xs[idx], ys[idx], p[idx], half, order,
+                   cross_stride(subsets.subset_size), sub_table, sub_ok)
+    table[idx], ok[idx] = sub_table, sub_ok
+    monomials = _MONOMIALS[:nm]
+    S = np.zeros((n, 2 * nm, 2 * nm))
+    K = np.zeros((n, 2 * nm, 2 * nm))
+    k_base = 4 + 4 * len(second)
+    for i, (ai, bi, ci) in enumerate(monomials):
+        for j, (aj, bj, cj) in enumerate(monomials):
+            slot = second[(int(ai + aj), int(bi + bj))]
+            col = 4 + 4 * slot
+            c = ci * cj
+            S[:, i, j] = c * table[:, col]                 # J's u-rows take f_x, G's u-columns g_x
+            S[:, i, nm + j] = c * table[:, col + 1]
+            S[:, nm + i, j] = c * table[:, col + 2]
+            S[:, nm + i, nm + j] = c * table[:, col + 3]
+            col = k_base + 3 * slot
+            K[:, i, j] = c * table[:, col]
+            K[:, i, nm + j] = K[:, nm + j, i] = c * table[:, col + 1]
+            K[:, nm + i, nm + j] = c * table[:, col + 2]
+    base = k_base + 3 * len(second)
+    sum_J = np.zeros((n, 2 * nm))
+    sum_G = np.zeros((n, 2 * nm))
+    for i, (a, b, c) in enumerate(monomials):
+        col = base + 4 * first[(int(a), int(b))]
+        sum_J[:, i], sum_J[:, nm + i] = c * table[:, col], c * table[:, col + 1]
+        sum_G[:, i], sum_G[:, nm + i] = c * table[:, col + 2], c * table[:, col + 3]
+    count = table[:, 2]
+    mean_target = table[:, 0] / count
+    delta_g = np.sqrt(np.maximum(table[:, 1] - count * mean_target ** 2, 0.0))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ratio = subsets.delta_f[points] / delta_g
+        M = ratio[:, None, None] * (S - sum_J[:, :, None] * sum_G[:, None, :] / count[:, None, None])
+        K = ratio[:, None, None] ** 2 * K
+    ok &= np.isfinite(ratio) & np.all(np.isfinite(M), axis=(1, 2)) & np.all(np.isfinite(K), axis=(1, 2))
+    return M, K, ratio, mean_target, ok
+
+
+def _general_inverse(m: np.ndarray, scale_from: np.ndarray) -> np.ndarray:
+    """Inverse of a batch (N, n, n) of square matrices, Jacobi-scaled by the diagonal of ``scale_from`` (their
+    entries span ~10^6); NaN for a singular one."""
+    d = 1.0 / np.sqrt(np.abs(np.einsum("kii->ki", scale_from)))
+    scaled = m * d[:, :, None] * d[:, None, :]
+    out = np.full(m.shape, np.nan)
+    good = np.all(np.isfinite(scaled), axis=(1, 2))
+    good[good] = np.abs(np.linalg.det(scaled[good])) > 1e-12
+    out[good] = np.linalg.inv(scaled[good]) * d[good][:, :, None] * d[good][:, None, :]
+    return out
+
+
 def _warp_phases(parameters: np.ndarray, half: int, samples: int = 3) -> tuple[np.ndarray, np.ndarray]:
     """Fractional target positions of a ``samples`` x ``samples`` lattice over each warped subset, (N, S)."""
     d = np.linspace(-half, half, samples)
@@ -536,13 +872,60 @@ def _warp_phases(parameters: np.ndarray, half: int, samples: int = 3) -> tuple[n
     return u, v
 
 
+@dataclass(frozen=True)
+class CrossTerms:
+    """A match's per-point cross-Hessian results (:func:`cross_hessians` through ``M^-1``), for a later match to
+    reuse (``like=`` of :func:`match_uncertainty`).
+
+    cov_reference_uv, unit_target_uv : ndarray (N, 2, 2)
+        The reference noise's part of (u, v) and ``M^-1 J^T J M^-T`` (the target noise's part per unit variance,
+        before the contrast ratio, the pixel density and the interpolant's gain), px^2.
+    var_reference, var_unit_target : ndarray (N, np)
+        Their diagonals over all shape parameters.
+    factor : ndarray (N, 2, np)
+        ``(M^-1)_uv W^1/2``.
+    contrast_ratio, mean_target : ndarray (N,)
+    warp_gradient : ndarray (N, 4)
+        The match's (du/dx, du/dy, dv/dx, dv/dy) where they were computed.
+    """
+
+    cov_reference_uv: np.ndarray = field(repr=False)
+    unit_target_uv: np.ndarray = field(repr=False)
+    var_reference: np.ndarray = field(repr=False)
+    var_unit_target: np.ndarray = field(repr=False)
+    factor: np.ndarray = field(repr=False)
+    contrast_ratio: np.ndarray = field(repr=False)
+    mean_target: np.ndarray = field(repr=False)
+    warp_gradient: np.ndarray = field(repr=False)
+
+
+#: A later match reuses its ``like``'s cross terms where its warp gradient is within this of ``like``'s (1 %
+#: strain changes the target's pixel density, hence sigma, by ~1 %; that part is recomputed anyway).
+CROSS_REUSE_TOLERANCE = 0.01
+
+
+def _warp_gradient(parameters: np.ndarray) -> np.ndarray:
+    return np.asarray(parameters)[:, [1, 2, 7, 8]]
+
+
 def match_uncertainty(subsets: ReferenceSubsets, result: DICResult, noise_target: NoiseModel | None = None, *,
-                      noise_source: str | None = None,
+                      target=None, like=None, keep_cross: bool = False, noise_source: str | None = None,
                       max_residual_ratio: float = DEFAULT_MAX_RESIDUAL_RATIO) -> MatchUncertainty:
     """Per-point uncertainty of ``result`` (a match of the reference of ``subsets`` to a target image).
 
     ``noise_target`` defaults to the reference's noise model (same camera, temporal match). The points of
     ``result`` must be those of ``subsets`` (same order).
+
+    ``target`` (the target image, array or :class:`PreparedImage`) gives each point its cross-Hessian ``M``
+    (:func:`cross_hessians`): the sensitivity of the match to both images' noise through what the target really
+    shows there -- a target more blurred, compressed or magnified than the reference (another camera's view, a
+    strained state) moves the match more than the reference's own Hessian says (a 1 px blur on a 4 px speckle:
+    x1.6 in sigma). Without it ``M = H0``, exact for a target that repeats the reference's view.
+
+    ``like`` saves the cross terms' cost where they are known: ``subsets`` itself (a target of the reference's own
+    camera: ``M = H0`` where the warp's gradient is within :data:`CROSS_REUSE_TOLERANCE` of zero) or an earlier
+    :class:`MatchUncertainty` kept with ``keep_cross`` (the stereo match for the right camera's states: its terms
+    where the warp's gradient is within the tolerance of its own). The other points get their own.
     """
     if not (np.array_equal(result.x, subsets.x) and np.array_equal(result.y, subsets.y)):
         raise ValueError("the match's points of interest differ from the reference subsets' (same grid needed)")
@@ -551,42 +934,109 @@ def match_uncertainty(subsets: ReferenceSubsets, result: DICResult, noise_target
                          f"reference subsets {subsets.subset_size} px order {subsets.order}")
     if not (np.isfinite(max_residual_ratio) and max_residual_ratio > 1):
         raise ValueError(f"max_residual_ratio must be a number > 1, got {max_residual_ratio!r}")
+    if like is not None and not isinstance(like, (ReferenceSubsets, MatchUncertainty)):
+        raise ValueError(f"like must be the ReferenceSubsets or a MatchUncertainty kept with keep_cross, got "
+                         f"{type(like).__name__}")
+    if isinstance(like, MatchUncertainty) and like.cross is None:
+        raise ValueError("like: this MatchUncertainty kept no cross terms (make it with keep_cross=True)")
+    if subsets.inverse is None:
+        raise ValueError("these reference subsets were not made by reference_subsets() (no H0^-1 kept)")
     noise_reference = subsets.noise_reference
     noise_target = noise_target or noise_reference
     source = noise_source or _source_of(noise_reference, noise_target)
     n = subsets.x.size
     npar = subsets.n_parameters
+    nm = npar // 2
     matched = (result.status == CONVERGED) & subsets.ok
     flag = np.where(matched, FLAG_NONE, np.where(result.status == CONVERGED, FLAG_SINGULAR, FLAG_NO_MATCH))
     flag = np.where((result.status == CONVERGED) & subsets.clipped, FLAG_SATURATED, flag).astype(np.int8)
+    # every point's terms: those of a repeat of the reference's view (the subsets' own) unless the target says
+    # otherwise
+    var_f_all = np.maximum(subsets.variance_reference, 1e-300)
+    cov_ref_uv = subsets.cov_uv_reference
+    unit_uv = cov_ref_uv / var_f_all[:, None, None]
+    var_ref = subsets.var_parameters_reference
+    var_unit = var_ref / var_f_all[:, None]
+    factor = subsets.reference_factor
+    contrast = np.ones(n)
+    mean_target = subsets.mean_grey
+    density = np.ones(n)
+    cross = None
+    if target is not None:
+        gradient = _warp_gradient(result.parameters)
+        cov_ref_uv, unit_uv, var_ref, var_unit, factor = (a.copy() for a in (cov_ref_uv, unit_uv, var_ref, var_unit,
+                                                                              factor))
+        contrast, mean_target = contrast.copy(), mean_target.copy()
+        need = matched.copy()
+        if like is not None:
+            base = np.zeros((n, 4)) if isinstance(like, ReferenceSubsets) else like.cross.warp_gradient
+            reuse = matched & (np.max(np.abs(gradient - base), axis=1) <= CROSS_REUSE_TOLERANCE)
+            if isinstance(like, MatchUncertainty):
+                c = like.cross
+                reuse &= np.all(np.isfinite(c.factor), axis=(1, 2))
+                for mine, theirs in ((cov_ref_uv, c.cov_reference_uv), (unit_uv, c.unit_target_uv),
+                                     (var_ref, c.var_reference), (var_unit, c.var_unit_target), (factor, c.factor),
+                                     (contrast, c.contrast_ratio), (mean_target, c.mean_target)):
+                    mine[reuse] = theirs[reuse]
+            need &= ~reuse
+        if need.any():
+            prepared = target if isinstance(target, PreparedImage) else prepare_image(
+                np.asarray(target), result.settings.interpolation, False, "target", result.settings.lowpass_sigma_px)
+            idx = np.flatnonzero(need)
+            M, w, c, m, ok = cross_hessians(subsets, prepared, result.parameters, points=idx)
+            inv = np.full(M.shape, np.nan)
+            inv[ok] = _general_inverse(M[ok], M[ok])
+            ok &= np.all(np.isfinite(inv), axis=(1, 2))
+            good = idx[ok]
+            inv, w = inv[ok], w[ok]
+            t_inv = np.swapaxes(inv, 1, 2)
+            full = inv @ w @ t_inv
+            # J^T J from the reference's noise-weighted Hessian over its mean noise variance
+            unit = inv @ (subsets.weighted_hessian[good] / var_f_all[good][:, None, None]) @ t_inv
+            cov_ref_uv[good] = full[:, [0, nm]][:, :, [0, nm]]
+            unit_uv[good] = unit[:, [0, nm]][:, :, [0, nm]]
+            var_ref[good] = np.einsum("kii->ki", full)
+            var_unit[good] = np.einsum("kii->ki", unit)
+            factor[good] = inv[:, [0, nm], :] @ _sqrtm(w)
+            contrast[idx], mean_target[idx] = c, m
+            flag[idx[~ok]] = FLAG_SINGULAR
+            matched[idx[~ok]] = False
+        p = result.parameters
+        with np.errstate(divide="ignore", invalid="ignore"):
+            density = 1.0 / np.abs((1.0 + p[:, 1]) * (1.0 + p[:, 8]) - p[:, 2] * p[:, 7])
+        if keep_cross:
+            cross = CrossTerms(cov_ref_uv, unit_uv, var_ref, var_unit, factor, contrast, mean_target, gradient)
     cov_ref = np.full((n, 2, 2), np.nan)
     cov_tgt = np.full((n, 2, 2), np.nan)
     sigma_parameters = np.full((n, 12), np.nan)
     ratio = np.full(n, np.nan)
     if matched.any():
         idx = np.flatnonzero(matched)
-        cov_ref[idx] = subsets.cov_uv_reference[idx]
-        var_t = noise_target.sigma_at(subsets.mean_grey[idx]) ** 2
+        c2 = contrast[idx] ** 2
+        var_t = noise_target.sigma_at(mean_target[idx]) ** 2
         var_f = subsets.variance_reference[idx]
-        scale = var_t / np.maximum(var_f, 1e-300)
         pu, pv = _warp_phases(result.parameters[idx], subsets.subset_size // 2)
         ku = subsets.gains.lookup("u", pu, pv).mean(axis=1)
         kv = subsets.gains.lookup("v", pu, pv).mean(axis=1)
         kw = subsets.gains.lookup("white", pu, pv).mean(axis=1)
         gain = np.stack([np.sqrt(ku), np.sqrt(kv)], axis=1)
-        cov_tgt[idx] = cov_ref[idx] * (scale[:, None, None] * gain[:, :, None] * gain[:, None, :])
-        # every shape parameter: the u-like ones take kappa_u, the v-like kappa_v
-        diag = subsets.var_parameters_reference[idx]
-        gains_all = np.concatenate([np.repeat(ku[:, None], npar // 2, 1), np.repeat(kv[:, None], npar // 2, 1)], 1)
-        var_all = diag * (1.0 + scale[:, None] * gains_all)
-        cols = list(range(npar // 2)) + list(range(6, 6 + npar // 2))
+        gains_all = np.concatenate([np.repeat(ku[:, None], nm, 1), np.repeat(kv[:, None], nm, 1)], 1)
+        cov_ref[idx] = cov_ref_uv[idx]
+        # the target's noise reaches the normal equations through J (the reference's gradients), scaled by Df / Dg,
+        # through the interpolant (kappa_u for the u-like parameters, kappa_v for the v-like), at the target's own
+        # pixel density: a subset the warp spreads over |det A| target pixels holds 1 / |det A| of the noise power
+        # per reference pixel (module notes)
+        scale = c2 * var_t * density[idx]
+        cov_tgt[idx] = unit_uv[idx] * (scale[:, None, None] * gain[:, :, None] * gain[:, None, :])
+        var_all = var_ref[idx] + var_unit[idx] * scale[:, None] * gains_all
+        cols = list(range(nm)) + list(range(6, 6 + nm))
         sigma_parameters[np.ix_(idx, cols)] = np.sqrt(var_all)
         # residual check: sum r^2 = Df^2 (2 - 2 ZNCC) against the noise
         pixels = subsets.subset_size ** 2
         observed = subsets.delta_f[idx] ** 2 * (2.0 - 2.0 * result.zncc[idx])
         ke = subsets.gains.signal_interpolation_error(pu, pv, float(np.median(var_f))).mean(axis=1)
         # the interpolant's own error on this texture is a residual too (fine speckle), not a misfit
-        explained = (pixels - npar - 2) * (var_f + kw * var_t) + ke * np.maximum(
+        explained = (pixels - npar - 2) * (var_f + kw * c2 * var_t) + ke * np.maximum(
             subsets.delta_f[idx] ** 2 - pixels * var_f, 0.0)
         ratio[idx] = observed / explained
         high = ratio[idx] > max_residual_ratio
@@ -594,8 +1044,9 @@ def match_uncertainty(subsets: ReferenceSubsets, result: DICResult, noise_target
     total = cov_ref + cov_tgt
     sigma_u = np.sqrt(total[:, 0, 0])
     sigma_v = np.sqrt(total[:, 1, 1])
+    factor = np.where(matched[:, None, None], factor, np.nan)
     return MatchUncertainty(sigma_u, sigma_v, cov_ref, cov_tgt, sigma_parameters, ratio, flag, source,
-                            noise_reference, noise_target)
+                            noise_reference, noise_target, reference_factor=factor, cross=cross)
 
 
 def _source_of(reference: NoiseModel, target: NoiseModel) -> str:
@@ -669,7 +1120,7 @@ def noise_from_residuals(subsets_values: np.ndarray, x_px, y_px, result: DICResu
 
 
 def dic_uncertainty(reference, result: DICResult, noise_reference: NoiseModel | None = None,
-                    noise_target: NoiseModel | None = None, *,
+                    noise_target: NoiseModel | None = None, *, target=None,
                     max_residual_ratio: float = DEFAULT_MAX_RESIDUAL_RATIO, bias: bool = False) -> MatchUncertainty:
     """Uncertainty of a 2-D match in one call: :func:`reference_subsets` + :func:`match_uncertainty` (and, with
     ``bias``, the systematic terms of every point: the interpolation bias bound,
@@ -677,7 +1128,9 @@ def dic_uncertainty(reference, result: DICResult, noise_reference: NoiseModel | 
     field, :func:`measurement.uncertainty.misfit.misfit_bias_px`).
 
     Without ``noise_reference`` the noise is fitted to the match's residuals (:func:`noise_from_residuals`, both
-    images alike); ``noise_target`` defaults to ``noise_reference``.
+    images alike); ``noise_target`` defaults to ``noise_reference``. ``target`` (the match's target image) gives
+    the points whose warp strains the target away from the reference their own cross terms
+    (:func:`match_uncertainty`).
 
     Raises
     ------
@@ -696,7 +1149,9 @@ def dic_uncertainty(reference, result: DICResult, noise_reference: NoiseModel | 
                                                interpolation=settings.interpolation, gains=gains)
     subsets = reference_subsets(prepared, result.x, result.y, settings.subset_size, settings.order, noise_reference,
                                 settings.interpolation, gains=gains)
-    unc = match_uncertainty(subsets, result, noise_target, max_residual_ratio=max_residual_ratio)
+    # with the target image, points the warp strains by more than CROSS_REUSE_TOLERANCE get their cross terms
+    unc = match_uncertainty(subsets, result, noise_target, target=target, like=subsets,
+                            max_residual_ratio=max_residual_ratio)
     if bias:
         from dataclasses import replace
 

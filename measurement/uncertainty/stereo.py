@@ -7,7 +7,11 @@ error is a sum of independent parts (:mod:`measurement.uncertainty.match`):
     e_s = d_L + n_R,   e_l = d_L + n_Ld,   e_r = d_L + n_Rd,
 
 with ``d_L`` the left reference's noise -- *the same* in all three matches, since they correlate the same reference
-subset -- and ``n_*`` the noise of the right reference, left deformed and right deformed images. Optimal
+subset -- and ``n_*`` the noise of the right reference, left deformed and right deformed images. Strictly, the
+left reference's noise moves each match by its own ``F_m xi`` (:attr:`~measurement.uncertainty.match.
+MatchUncertainty.reference_factor`: the stereo match's cross-Hessian sees the right camera's blur and scale, the
+left temporal match the left camera's); with the factors given, the shared part below is
+``(G_L F_l + G_R F_r - G_R^ref F_s) (...)^T`` instead of ``(G_L + G_R - G_R^ref) C_L (...)^T``. Optimal
 triangulation moves a point by ``G = (J^T J)^-1 J^T`` per pixel error (J: the (4, 3) stacked projection Jacobian
 of both cameras, tilt and distortion included; G's columns 0-1 for the left pixel, 2-3 for the right one). So
 
@@ -68,7 +72,7 @@ def shape_covariance_mm2(G_ref: np.ndarray, cov_left_reference_px2: np.ndarray,
 
 def state_covariances_mm2(G_ref: np.ndarray, G_def: np.ndarray, cov_left_reference_px2: np.ndarray,
                           cov_right_reference_px2: np.ndarray, cov_left_deformed_px2: np.ndarray,
-                          cov_right_deformed_px2: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+                          cov_right_deformed_px2: np.ndarray, *, factors=None) -> tuple[np.ndarray, np.ndarray]:
     """Covariance of the deformed positions and of the displacements (module notes), each (N, 3, 3) mm^2.
 
     Parameters
@@ -79,17 +83,28 @@ def state_covariances_mm2(G_ref: np.ndarray, G_def: np.ndarray, cov_left_referen
         The left reference image's part of every match (shared).
     cov_right_reference_px2, cov_left_deformed_px2, cov_right_deformed_px2 : (N, 2, 2)
         The target parts of the stereo match, the left temporal match and the right temporal match.
+    factors : tuple of three (N, 2, np) arrays, optional
+        The reference factors ``F`` of the stereo, left temporal and right temporal matches (module notes); the
+        shared part then follows each match's own sensitivity to the left reference's noise and
+        ``cov_left_reference_px2`` is not used.
 
     Returns
     -------
     cov_X_def, cov_U : ndarray (N, 3, 3)
     """
     GL, GR, GRref = G_def[:, :, :2], G_def[:, :, 2:], G_ref[:, :, 2:]
-    shared = GL + GR - GRref
-    cov_U = (_sandwich(shared, cov_left_reference_px2) + _sandwich(GL, cov_left_deformed_px2)
+    if factors is None:
+        shared_U = _sandwich(GL + GR - GRref, cov_left_reference_px2)
+        shared_X = _sandwich(GL + GR, cov_left_reference_px2)
+    else:
+        F_s, F_l, F_r = (np.asarray(f, dtype=np.float64) for f in factors)
+        deformed = GL @ F_l + GR @ F_r
+        shared_X = deformed @ np.swapaxes(deformed, 1, 2)
+        moved = deformed - GRref @ F_s
+        shared_U = moved @ np.swapaxes(moved, 1, 2)
+    cov_U = (shared_U + _sandwich(GL, cov_left_deformed_px2)
              + _sandwich(GR, cov_right_deformed_px2) + _sandwich(GRref, cov_right_reference_px2))
-    cov_X = (_sandwich(GL + GR, cov_left_reference_px2) + _sandwich(GL, cov_left_deformed_px2)
-             + _sandwich(GR, cov_right_deformed_px2))
+    cov_X = shared_X + _sandwich(GL, cov_left_deformed_px2) + _sandwich(GR, cov_right_deformed_px2)
     return cov_X, cov_U
 
 
@@ -105,9 +120,14 @@ def static_repeat_covariance_mm2(G_ref: np.ndarray, cov_left_reference_px2: np.n
 
     A static repeat samples both new images at the reference's own sub-pixel phases: the left one at whole pixels
     (its noise counts as the left reference's, ``C_L``), the right one where the stereo match sampled the right
-    reference (``C_R``); the deformed points are the reference points, so ``G_def = G_ref`` and (module notes)
+    reference (``C_R``); the deformed points are the reference points, so ``G_def = G_ref``, the right repeat's
+    match moves with the left reference's noise as the stereo match does (their shares cancel) and (module notes)
     ``Cov U = 2 G_L C_L G_L^T + 2 G_R C_R G_R^T``. This is what a digital twin predicts for a rig before any
     static pair is recorded.
+
+    ``cov_left_reference_px2`` is the left reference's part of a left-to-left match
+    (:attr:`~measurement.uncertainty.match.ReferenceSubsets.cov_uv_reference`), ``cov_right_reference_px2`` the
+    right image's part of the stereo match (its ``cov_target_px2``).
     """
     GL, GR = G_ref[:, :, :2], G_ref[:, :, 2:]
     return 2.0 * _sandwich(GL, cov_left_reference_px2) + 2.0 * _sandwich(GR, cov_right_reference_px2)

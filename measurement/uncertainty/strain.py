@@ -352,7 +352,9 @@ def state_strain_sigma(shape, state, strain, G_ref: np.ndarray, G_def: np.ndarra
     positions in the strain's frame and the rotation to it, when the strain was computed after an alignment.
     """
     GL, GR, GRref = G_def[:, :, :2], G_def[:, :, 2:], G_ref[:, :, 2:]
-    ref = shape.match_uncertainty.cov_reference_px2
+    # the pairs' own standard deviations are the left reference's part of a repeat of its view (H0): every block is
+    # scaled relative to it (the stereo match's cross-Hessian enters through its target part's ratio)
+    ref = shape.subsets.cov_uv_reference
     blocks = [(GL + GR - GRref, np.ones(ref.shape[0])),
               (-GRref, _ratio(shape.match_uncertainty.cov_target_px2, ref)),
               (GL, _ratio(state.left_uncertainty.cov_target_px2, ref)),

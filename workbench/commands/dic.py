@@ -104,7 +104,7 @@ def dic_command(args) -> int:
         from measurement.uncertainty.match import dic_uncertainty
 
         # without a static pair the noise is fitted to the match's own residuals (stated in the output)
-        result.uncertainty = dic_uncertainty(reference, result, noise, bias=True)
+        result.uncertainty = dic_uncertainty(reference, result, noise, target=deformed, bias=True)
     result.to_csv(args.out)
     ok = result.converged
     counts = ", ".join(f"{name.lower()} {n}" for name, n in result.status_counts().items())

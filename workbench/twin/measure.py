@@ -146,12 +146,14 @@ def instrument_sigma_stereo(rig, shape) -> np.ndarray:
     """The instrument's predicted sigma of U, V, W for a static repeat of ``shape``'s reference pair, (N, 3) µm.
 
     :func:`measurement.uncertainty.stereo.static_repeat_covariance_mm2` with the shape's own match uncertainty
-    (the noise models it was measured with); NaN where the shape has none."""
+    (the noise models it was measured with): the left camera's part from its reference subsets, the right one's
+    from the stereo match; NaN where the shape has none."""
     unc = shape.match_uncertainty
-    if unc is None:
+    if unc is None or shape.subsets is None:
         return np.full((shape.x.size, 3), np.nan)
     G = triangulation_sensitivity(rig.left, rig.right, rig.R_right_from_left, rig.T_right_from_left_mm, shape.X_mm)
-    return sigmas(static_repeat_covariance_mm2(G, unc.cov_reference_px2, unc.cov_target_px2)) * 1e3
+    left = np.where(np.isfinite(unc.sigma_u_px)[:, None, None], shape.subsets.cov_uv_reference, np.nan)
+    return sigmas(static_repeat_covariance_mm2(G, left, unc.cov_target_px2)) * 1e3
 
 
 def instrument_sigma_2d(reference, x_px, y_px, settings: DICSettings, noise) -> np.ndarray:

@@ -86,7 +86,7 @@ def run_planar_class(cls: PlanarClass, *, draws: int = 12, seed: int = 0, size: 
         dfm = noise.apply(deformed, seed=seed * 1000 + 3 * d + 2)
         result = correlate(ref, dfm, settings, roi=(margin, margin, size - margin, size - margin))
         model = noise_from_static_pair(ref, static)
-        unc = dic_uncertainty(ref, result, model, bias=True)
+        unc = dic_uncertainty(ref, result, model, target=dfm, bias=True)
         if truth is None:
             truth = np.column_stack(field(result.x.astype(float), result.y.astype(float)))
         measured.append(np.column_stack([result.u, result.v]))

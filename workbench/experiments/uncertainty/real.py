@@ -51,7 +51,7 @@ def static_pair_coverage(reference: np.ndarray, static: np.ndarray, *, roi=None,
     for source in ("match residuals", "static pair"):
         model = None if source == "match residuals" else noise_from_static_pair(reference, static,
                                                                                 motion_xy_px=motion)
-        unc = dic_uncertainty(reference, result, model)
+        unc = dic_uncertainty(reference, result, model, target=static)
         ok = result.converged & (unc.flag == FLAG_NONE) & np.isfinite(unc.sigma_u_px)
         figures = {}
         design = np.column_stack([np.ones(int(ok.sum())), result.x[ok], result.y[ok]]).astype(float)
