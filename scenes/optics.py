@@ -49,7 +49,12 @@ def diffraction_otf(frequency_cycles_per_px, f_number: float, wavelength_nm: flo
     shape); 1 at 0, 0 beyond the cut-off."""
     r = np.abs(np.asarray(frequency_cycles_per_px, float)) / cutoff_cycles_per_px(f_number, wavelength_nm,
                                                                                     pixel_pitch_mm)
-    r = np.minimum(r, 1.0)
+    return aperture_otf(r)
+
+
+def aperture_otf(r) -> np.ndarray:
+    """The incoherent OTF of a circular aperture at ``r`` = frequency / cut-off (any shape): 1 at 0, 0 from 1 on."""
+    r = np.minimum(np.abs(np.asarray(r, float)), 1.0)
     return 2.0 / np.pi * (np.arccos(r) - r * np.sqrt(1.0 - r * r))
 
 

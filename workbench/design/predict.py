@@ -13,8 +13,9 @@ Per ROI sample point and per camera (each point at the reference and at both end
   camera's data sheet, quantisation) at the paint's mean grey ``I``;
 * **the match**: the instrument's covariance of (u, v) for that speckle and blur (:mod:`workbench.design.pattern`:
   the instrument's :func:`~measurement.uncertainty.match.reference_subsets` on the paint), scaled by noise and
-  exposure and turned by the foreshortening; the target image's part gets the interpolant's noise gain, as the
-  instrument's :func:`~measurement.uncertainty.match.match_uncertainty` gives it;
+  exposure and turned by the foreshortening; the right image's part of the stereo match as the instrument's
+  cross-Hessian gives it (:func:`_stereo_target_part`: the right camera's own scale and blur against the left
+  reference's), with the interpolant's noise gain;
 * **stereo**: the instrument's triangulation sensitivity (:func:`~measurement.uncertainty.stereo.
   triangulation_sensitivity`, both cameras) and its static-repeat covariance (:func:`~measurement.uncertainty.
   stereo.static_repeat_covariance_mm2`): the noise floor of a static pair, what a twin predicts for a built rig.
@@ -38,10 +39,8 @@ from measurement.uncertainty.stereo import sigmas, static_repeat_covariance_mm2,
 from scenes.truth import defocus_blur_px, project_points
 
 from .geometry import SIDES, CandidateRig
-from .pattern import E0_GREY, PatternTable
+from .pattern import AIRY_SIGMA, E0_GREY, PatternTable
 
-#: Airy pattern's best-fitting Gaussian: sigma = AIRY_SIGMA lambda N (image plane).
-AIRY_SIGMA = 0.42
 #: Finite-difference step along the face for the image Jacobian, mm.
 JACOBIAN_STEP_MM = 0.05
 
@@ -97,6 +96,39 @@ def _jacobian(spec, R, t, X, tx, ty) -> np.ndarray:
     for d in (tx, ty):
         cols.append((project_points(spec, R, t, X + h * d) - project_points(spec, R, t, X - h * d)) / (2 * h))
     return np.stack(cols, axis=2)
+
+
+def _stereo_target_part(table, candidate, poses, X, tx, ty, d_mm, det_left, blur, diffr, unit_var) -> np.ndarray:
+    """The right image's part of the stereo match's (u, v) covariance, right px^2 (N, 2, 2): what the instrument's
+    cross-Hessian (:func:`measurement.uncertainty.match.cross_hessians`) gives a left reference matched to a right
+    image of another scale and blur.
+
+    In the right image's own frame the right camera's table value ``T(s_R, c_R)`` would hold for a reference that
+    repeats its view; the left reference covers ``1 / |det A_LR|`` of the right pixels a right subset would
+    (``A_LR``: d right px / d left px, the target's pixel density) and has the left camera's blur ``c_L'`` (in right
+    px), which the cross-Hessian weighs by ``H(c_L') H(c_R) / H_x^2`` (``H = 1 / T`` the gradient energy, ``H_x`` the
+    cross term): exact for Gaussian blurs, whose cross term is the energy at the RMS blur
+    ``sqrt((c_L'^2 + c_R^2) / 2)``, taken so for the discs here. So ``C_R = kappa T(c_m)^2 / T(c_L') / |det A_LR|``
+    turned by the right camera's foreshortening."""
+    A = _jacobian(candidate.specs["right"], *poses["right"], X, tx, ty)
+    det = np.abs(np.linalg.det(A))
+    density = det_left / det                       # 1 / |det A_LR|
+    c_left = blur[:, 0] * np.sqrt(det / det_left)  # the left blur circle in right px
+    c_mean = np.sqrt(0.5 * (c_left ** 2 + blur[:, 1] ** 2))
+    kappa = table.noise_gain(d_mm * np.sqrt(det), blur[:, 1], diffr)
+    return unit_var * (kappa * density)[:, None, None] * _principal_covariance(
+        table, A, d_mm, lambda s: table.covariance(s, c_mean, diffr) ** 2 / table.covariance(s, c_left, diffr))
+
+
+def _principal_covariance(table, A, d_mm, value) -> np.ndarray:
+    """A foreshortened speckle's (u, v) covariance per unit noise, (N, 2, 2): along each principal direction of the
+    face-to-image Jacobian ``A`` (N, 2, 2) the table's value at that direction's speckle size ``d sigma_i(A)`` (the
+    image's isotropic blur and pixels take more from the direction the view compresses)."""
+    U, S, _ = np.linalg.svd(A)
+    D = np.zeros(A.shape)
+    D[:, 0, 0] = value(d_mm * S[:, 0])
+    D[:, 1, 1] = value(d_mm * S[:, 1])
+    return U @ D @ np.swapaxes(U, 1, 2)
 
 
 def window_slope_factor(window: int, step_px: int, subset_px: int) -> float:
@@ -174,11 +206,10 @@ def predict(candidate: CandidateRig, surface, camera, lighting, search, table: P
         A = _jacobian(candidate.specs["left"], *poses["left"], X, tx, ty)
         det = np.abs(np.linalg.det(A))
         s_px = d_mm * np.sqrt(det)
-        Bm = A / np.sqrt(det)[:, None, None]
-        t_unit = table.covariance(s_px, blur[:, 0], diffr)                  # px^2 per grey^2 at E0
-        kappa = table.noise_gain(s_px, blur[:, 0], diffr)
-        C_L = (var * (E0_GREY / E) ** 2 * t_unit)[:, None, None] * (Bm @ np.swapaxes(Bm, 1, 2))
-        C_R = C_L * kappa[:, None, None]                                    # same camera, same exposure
+        # px^2 per grey^2 at E0, along the view's principal directions
+        C_L = var * (E0_GREY / E) ** 2 * _principal_covariance(
+            table, A, d_mm, lambda s: table.covariance(s, blur[:, 0], diffr))
+        C_R = _stereo_target_part(table, candidate, poses, X, tx, ty, d_mm, det, blur, diffr, var * (E0_GREY / E) ** 2)
         G = triangulation_sensitivity(rig.left, rig.right, rig.R_right_from_left, rig.T_right_from_left_mm, X)
         cov = static_repeat_covariance_mm2(G, C_L, C_R)
         cov_spec = Rws.T @ cov @ Rws

@@ -302,7 +302,9 @@ def write_report(dr) -> Path:
         lines += ["## Verification: the rigs rendered and measured", "",
                   "Each rig rendered with the specimen (thin lens, the design's speckle), the camera's noise and "
                   "exposure applied, measured by the instrument: static pairs (noise) and one deformed state "
-                  "against the truth. U, V, W along the face's x, y and normal.", "",
+                  "against the truth. U, V, W along the face's x, y and normal; the prediction where the measurement is "
+                  "(each measured point takes its nearest ROI sample's sigma, on a grid 4 times denser than the "
+                  "search's).", "",
                   "| rig | component | predicted (µm) | measured (µm) | predicted / measured | instrument's own "
                   "sigma, deformed state (µm) | deformed state: measured random error (µm) |",
                   "|---|---|---|---|---|---|---|"]
@@ -312,6 +314,13 @@ def write_report(dr) -> Path:
                 inst = de["instrument_sigma_um"][k] if de.get("instrument_sigma_um") else None
                 lines.append(f"| {key} | {comp} | {_fmt(st['predicted_um'][k])} | {_fmt(st['measured_um'][k])} | "
                              f"{_fmt(st['ratio'][k])} | {_fmt(inst)} | {_fmt(de['measured_um'][k])} |")
+        for key, v in dr.verification.items():
+            cov = v["static"].get("roi_samples_covered")
+            if cov and cov[0] < cov[1]:
+                whole = v["static"]["predicted_whole_roi_um"]
+                lines += ["", f"{key}: the match failed at {cov[1] - cov[0]} of {cov[1]} ROI samples (no measured point "
+                          f"within a grid step); over the whole ROI the prediction is U, V, W "
+                          + ", ".join(_fmt(w) for w in whole) + " µm."]
         if "untilted" in dr.verification and "chosen" in dr.verification:
             pr = [u / c for u, c in zip(dr.verification["untilted"]["static"]["predicted_um"],
                                         dr.verification["chosen"]["static"]["predicted_um"])]

@@ -190,3 +190,12 @@ def surface_of(specimen, folder) -> tuple[Surface, Path | None]:
         path = catalog_file(specimen.catalog, Path(folder) / specimen.catalog)
         return mesh_surface(path, "mm", specimen.roi_mm, specimen.sample_points, specimen.catalog), path
     return mesh_surface(specimen.mesh, specimen.unit, specimen.roi_mm, specimen.sample_points), Path(specimen.mesh)
+
+
+def resampled(specimen, specimen_path, samples) -> Surface:
+    """The design's face sampled on another ``samples`` (columns, rows) grid over the same ROI, from the specimen
+    file already made (None for a plane)."""
+    if specimen.plane_mm is not None:
+        return plane_surface(*specimen.plane_mm, specimen.roi_mm, samples)
+    unit = "mm" if specimen.catalog else specimen.unit
+    return mesh_surface(specimen_path, unit, specimen.roi_mm, samples, specimen.catalog or "")

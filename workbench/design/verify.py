@@ -15,7 +15,10 @@ noise and its quantisation (:func:`camera_image`). The instrument measures
   own per-point sigma;
 * the **deformed state** against the truth (random error: the standard deviation of the error, its mean removed).
 
-U, V, W in the specimen frame (along the face's x, y and its normal), as the design predicts them. Where the design
+U, V, W in the specimen frame (along the face's x, y and its normal), as the design predicts them on a ROI grid
+:data:`VERIFY_DENSITY` times denser than the search's, its RMS where the measurement is (each measured point takes its
+nearest sample's sigma: the ROI weighed as the measurement weighs it; where the match fails -- a grazing view at a
+curved face's edge -- neither side counts, and the whole ROI's prediction is given beside). Where the design
 was predicted at full resolution and the render is smaller (``verify.scale``), the prediction is redone for the
 rendered camera (same geometry, tilts and paint; fewer, larger pixels).
 """
@@ -37,7 +40,10 @@ from ..rigs import optics_block
 from ..twin.measure import static_noise_stereo
 from .geometry import build_candidate
 from .predict import exposure_grey, noise_variance_grey2, predict
+from .surface import resampled
 
+#: The verification predicts on a ROI grid this many times denser (per axis) than the search's.
+VERIFY_DENSITY = 4
 #: The plane specimen's thickness when written as a box, mm.
 PLANE_THICKNESS_MM = 2.0
 #: A plane's deformed state: a rigid move along the face's x, y and towards the cameras, in pixels at its centre.
@@ -176,7 +182,9 @@ def verify(design, prediction, surface, specimen_path: Path | None, folder, tabl
     cand_r = build_candidate(cam_r, lens, cand.f_number, cand.placement.distance_mm,
                              cand.placement.stereo_angle_deg, tilt=cand.tilted,
                              tilt_max_deg=design.adapter.tilt_max_deg, plane_centre_mm=plane_c, plane_normal=plane_n)
-    pred_r = predict(cand_r, surface, cam_r, design.lighting, design.search, table, speckle_mm=speckle_mm,
+    # on a grid VERIFY_DENSITY times denser than the search's: the measurement weighs the ROI by its points
+    dense = resampled(s, specimen_path, tuple(VERIFY_DENSITY * (n - 1) + 1 for n in s.sample_points))
+    pred_r = predict(cand_r, dense, cam_r, design.lighting, design.search, table, speckle_mm=speckle_mm,
                      depth_range_mm=0.0, contrast=s.speckle_contrast)
 
     # the camera: exposure and noise
@@ -197,16 +205,25 @@ def verify(design, prediction, surface, specimen_path: Path | None, folder, tabl
         sn = static_noise_stereo(truth_rig(scenario), draw["left0"], draw["right0"], draw["left1"], draw["right1"],
                                  settings, mask=roi, strain_window=design.search.strain_window, noise=models)
         values = _spec_frame(sn.values / 1e3, Rws) * 1e3            # µm, mean removed per component
-        runs.append({"measured": [_std(values[:, k]) for k in range(3)], "points": int(np.isfinite(values[:, 0]).sum()),
-                     "strain_ue": sn.strain_ue, "instrument_left_frame_um": sn.instrument_sigma})
+        good = np.isfinite(values[:, 0])
+        runs.append({"measured": [_std(values[:, k]) for k in range(3)], "points": int(good.sum()),
+                     "strain_ue": sn.strain_ue, "instrument_left_frame_um": sn.instrument_sigma,
+                     "measured_xy": np.column_stack([sn.x_px, sn.y_px])[good]})
         if progress is not None:
             progress(f"static pair {r + 1}/{design.verify.repeats}")
     measured = [float(np.sqrt(np.mean([run["measured"][k] ** 2 for run in runs]))) for k in range(3)]
-    predicted = [pred_r.summary[f"sigma_{c}_um"] for c in "UVW"]
+    # the prediction where the measurement is: each measured point takes its nearest ROI sample's sigma (so the ROI
+    # is weighed as the measurement weighs it, by image area); samples with no measured point within a grid step (a
+    # match that failed there: a grazing view at a curved face's edge) count on neither side
+    near = _nearest_samples(pred_r.pixels_left, runs[0]["measured_xy"])
+    covered = _covered_samples(pred_r.pixels_left, runs[0]["measured_xy"], design.search.step_px)
+    predicted = [_rms(pred_r.sigma_U_um[near, k]) for k in range(3)]
     out = {"label": cand.rig.name, "files": {k: str(v) for k, v in files.items()},
            "images": str(images), "scale": sc, "exposure_grey": E, "noise_grey": math.sqrt(noise_variance_grey2(
                camera, 0.5 * E)),
            "static": {"predicted_um": predicted, "measured_um": measured,
+                      "predicted_whole_roi_um": [pred_r.summary[f"sigma_{c}_um"] for c in "UVW"],
+                      "roi_samples_covered": [int(covered.sum()), int(covered.size)],
                       "ratio": [p / mm if mm > 0 else math.nan for p, mm in zip(predicted, measured)],
                       "points": runs[0]["points"], "repeats": len(runs),
                       "strain_measured_ue": runs[0]["strain_ue"],
@@ -215,6 +232,23 @@ def verify(design, prediction, surface, specimen_path: Path | None, folder, tabl
     out["deformed"] = _deformed(truth, scenario, images, clean, gain, camera, models, settings, roi, Rws, predicted,
                                 seed + 997)
     return out
+
+
+def _covered_samples(sample_xy_px: np.ndarray, measured_xy_px: np.ndarray, step_px: float) -> np.ndarray:
+    """Which ROI samples (left px, (N, 2)) have a measured point within one grid step, (N,) bool."""
+    from scipy.spatial import cKDTree
+
+    if len(measured_xy_px) == 0:
+        return np.zeros(len(sample_xy_px), dtype=bool)
+    distance, _ = cKDTree(measured_xy_px).query(np.asarray(sample_xy_px, float))
+    return distance <= float(step_px)
+
+
+def _nearest_samples(sample_xy_px: np.ndarray, measured_xy_px: np.ndarray) -> np.ndarray:
+    """Index of the nearest ROI sample (left px) of every measured point, (M,) int."""
+    from scipy.spatial import cKDTree
+
+    return cKDTree(np.asarray(sample_xy_px, float)).query(np.asarray(measured_xy_px, float))[1]
 
 
 def truth_rig(scenario):
