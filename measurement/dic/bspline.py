@@ -366,6 +366,48 @@ def quintic_weight_derivatives(t, w):
     w[5] = (1.0 / 24.0) * t4
 
 
+@numba.njit(inline="always", fastmath=True)
+def value_gradient(coefficients, degree, x, y, wx, wy, dwx, dwy):
+    """(inside, f, df/dx, df/dy) of the interpolant at one real point, with caller-owned weight buffers ``wx``,
+    ``wy``, ``dwx``, ``dwy`` (float64, length >= 6): no allocation, for loops over many points. ``inside`` is False
+    (and the values 0) when the support leaves the coefficient array."""
+    rows, cols = coefficients.shape
+    if degree == 3:
+        lo, hi = 1, 2
+    else:
+        lo, hi = 2, 3
+    if not (x >= lo and y >= lo and x < cols - hi and y < rows - hi):
+        return False, 0.0, 0.0, 0.0
+    ix = int(x)
+    iy = int(y)
+    tx = x - ix
+    ty = y - iy
+    if degree == 3:
+        wx[0], wx[1], wx[2], wx[3] = cubic_weights(tx)
+        wy[0], wy[1], wy[2], wy[3] = cubic_weights(ty)
+        cubic_weight_derivatives(tx, dwx)
+        cubic_weight_derivatives(ty, dwy)
+    else:
+        wx[0], wx[1], wx[2], wx[3], wx[4], wx[5] = quintic_weights(tx)
+        wy[0], wy[1], wy[2], wy[3], wy[4], wy[5] = quintic_weights(ty)
+        quintic_weight_derivatives(tx, dwx)
+        quintic_weight_derivatives(ty, dwy)
+    value = 0.0
+    gx = 0.0
+    gy = 0.0
+    for i in range(degree + 1):
+        row_value = 0.0
+        row_dx = 0.0
+        for j in range(degree + 1):
+            c = coefficients[iy - lo + i, ix - lo + j]
+            row_value += c * wx[j]
+            row_dx += c * dwx[j]
+        value += wy[i] * row_value
+        gx += wy[i] * row_dx
+        gy += dwy[i] * row_value
+    return True, value, gx, gy
+
+
 @numba.njit(fastmath=True)
 def evaluate_point(coefficients, degree, x, y, out):
     """Value and gradient of the interpolant at one real point.
@@ -385,51 +427,11 @@ def evaluate_point(coefficients, degree, x, y, out):
     bool
         False (and ``out`` untouched) when the support leaves the coefficient array.
     """
-    rows, cols = coefficients.shape
-    if degree == 3:
-        lo, hi = 1, 2
-    else:
-        lo, hi = 2, 3
-    if not (x >= lo and y >= lo and x < cols - hi and y < rows - hi):
+    buffers = np.empty((4, 6))
+    inside, value, gx, gy = value_gradient(coefficients, degree, x, y, buffers[0], buffers[1], buffers[2],
+                                           buffers[3])
+    if not inside:
         return False
-    ix = int(x)
-    iy = int(y)
-    tx = x - ix
-    ty = y - iy
-    n = degree + 1
-    wx = np.empty(6)
-    wy = np.empty(6)
-    dwx = np.empty(6)
-    dwy = np.empty(6)
-    if degree == 3:
-        wtx = cubic_weights(tx)
-        wty = cubic_weights(ty)
-        for j in range(4):
-            wx[j] = wtx[j]
-            wy[j] = wty[j]
-        cubic_weight_derivatives(tx, dwx)
-        cubic_weight_derivatives(ty, dwy)
-    else:
-        wtx = quintic_weights(tx)
-        wty = quintic_weights(ty)
-        for j in range(6):
-            wx[j] = wtx[j]
-            wy[j] = wty[j]
-        quintic_weight_derivatives(tx, dwx)
-        quintic_weight_derivatives(ty, dwy)
-    value = 0.0
-    gx = 0.0
-    gy = 0.0
-    for i in range(n):
-        row_value = 0.0
-        row_dx = 0.0
-        for j in range(n):
-            c = coefficients[iy - lo + i, ix - lo + j]
-            row_value += c * wx[j]
-            row_dx += c * dwx[j]
-        value += wy[i] * row_value
-        gx += wy[i] * row_dx
-        gy += dwy[i] * row_value
     out[0] = value
     out[1] = gx
     out[2] = gy

@@ -66,7 +66,6 @@ import numba
 import numpy as np
 
 from measurement.dic import bspline
-from measurement.dic.bspline import evaluate_point
 from measurement.dic.correlate import DICResult, PreparedImage, prepare_image
 from measurement.dic.icgn import _MONOMIALS, prepare_reference
 from measurement.dic.status import CONVERGED
@@ -271,43 +270,6 @@ def _hessians(image, grad_x, grad_y, weighted_gx, weighted_gy, xs, ys, half, ord
         ok_out[k] = True
 
 
-@numba.njit(cache=True, inline="always", fastmath=True)
-def _spline_value_gradient(coefficients, degree, x, y, wx, wy, dwx, dwy):
-    """(ok, g, g_x, g_y) of the B-spline interpolant at (x, y), with caller-owned weight buffers (no allocation)."""
-    rows, cols = coefficients.shape
-    lo, hi = (1, 2) if degree == 3 else (2, 3)
-    if not (x >= lo and y >= lo and x < cols - hi and y < rows - hi):
-        return False, 0.0, 0.0, 0.0
-    ix = int(x)
-    iy = int(y)
-    tx = x - ix
-    ty = y - iy
-    if degree == 3:
-        wx[0], wx[1], wx[2], wx[3] = bspline.cubic_weights(tx)
-        wy[0], wy[1], wy[2], wy[3] = bspline.cubic_weights(ty)
-        bspline.cubic_weight_derivatives(tx, dwx)
-        bspline.cubic_weight_derivatives(ty, dwy)
-    else:
-        wx[0], wx[1], wx[2], wx[3], wx[4], wx[5] = bspline.quintic_weights(tx)
-        wy[0], wy[1], wy[2], wy[3], wy[4], wy[5] = bspline.quintic_weights(ty)
-        bspline.quintic_weight_derivatives(tx, dwx)
-        bspline.quintic_weight_derivatives(ty, dwy)
-    value = 0.0
-    gx = 0.0
-    gy = 0.0
-    for i in range(degree + 1):
-        row_value = 0.0
-        row_dx = 0.0
-        for j in range(degree + 1):
-            c = coefficients[iy - lo + i, ix - lo + j]
-            row_value += c * wx[j]
-            row_dx += c * dwx[j]
-        value += wy[i] * row_value
-        gx += wy[i] * row_dx
-        gy += dwy[i] * row_value
-    return True, value, gx, gy
-
-
 @numba.njit(cache=True, parallel=True, fastmath=True)
 def _cross_moments(ref_gx, ref_gy, variance, coefficients, degree, xs, ys, parameters, half, order, stride, out,
                    ok_out):
@@ -349,7 +311,7 @@ def _cross_moments(ref_gx, ref_gy, variance, coefficients, degree, xs, ys, param
                 dx = float(c)
                 u = u0 + u1 * dx + 0.5 * p[3] * dx * dx
                 v = v0 + v1 * dx + 0.5 * p[9] * dx * dx
-                ok, g, gx, gy = _spline_value_gradient(coefficients, degree, xs[k] + dx + u, ys[k] + dy + v,
+                ok, g, gx, gy = bspline.value_gradient(coefficients, degree, xs[k] + dx + u, ys[k] + dy + v,
                                                        wx, wy, dwx, dwy)
                 if not ok:
                     good = False
