@@ -92,7 +92,7 @@ def _cholesky_inverse(h, out):
 
 #: Monomials of the shape-function Jacobian, (power of dx, power of dy, factor), in parameter order
 #: (u, ux, uy, uxx, uxy, uyy); the first three make the first-order shape function.
-_MONOMIALS = np.array([[0, 0, 1.0], [1, 0, 1.0], [0, 1, 1.0], [2, 0, 0.5], [1, 1, 1.0], [0, 2, 0.5]])
+MONOMIALS = np.array([[0, 0, 1.0], [1, 0, 1.0], [0, 1, 1.0], [2, 0, 0.5], [1, 1, 1.0], [0, 2, 0.5]])
 
 
 @numba.njit(cache=True, fastmath=True)
@@ -180,7 +180,7 @@ def prepare_reference(image, grad_x, grad_y, x0, y0, half, order, min_std, f, fx
     f, fx, fy : ndarray of float64, shape ((2M+1)^2,)
         Out: zero-mean subset values and gradients, row-major.
     hinv : ndarray, shape (np, np)
-        Out: inverse Hessian (np = 6 or 12: the parameters of :data:`_MONOMIALS` for x, then for y).
+        Out: inverse Hessian (np = 6 or 12: the parameters of :data:`MONOMIALS` for x, then for y).
     a, s : ndarray, shape (np,)
         Out: sum J^T (f - f_m) and sum J^T.
 
@@ -277,16 +277,16 @@ def prepare_reference(image, grad_x, grad_y, x0, y0, half, order, min_std, f, fx
     h = np.empty((npar, npar))
     for ci in range(2):
         for i in range(nm):
-            ai = int(_MONOMIALS[i, 0])
-            bi = int(_MONOMIALS[i, 1])
-            wi = _MONOMIALS[i, 2]
+            ai = int(MONOMIALS[i, 0])
+            bi = int(MONOMIALS[i, 1])
+            wi = MONOMIALS[i, 2]
             a[ci * nm + i] = wi * moments[3 + ci, ai, bi]
             s[ci * nm + i] = wi * moments[5 + ci, ai, bi]
             for cj in range(2):
                 kind = ci + cj   # 0 xx, 1 xy, 2 yy
                 for j in range(nm):
-                    h[ci * nm + i, cj * nm + j] = wi * _MONOMIALS[j, 2] * moments[
-                        kind, ai + int(_MONOMIALS[j, 0]), bi + int(_MONOMIALS[j, 1])]
+                    h[ci * nm + i, cj * nm + j] = wi * MONOMIALS[j, 2] * moments[
+                        kind, ai + int(MONOMIALS[j, 0]), bi + int(MONOMIALS[j, 1])]
     std = np.sqrt(sum_sq / (n * n))
     if not std >= min_std:
         return LOW_TEXTURE, 0.0, sssig_x, sssig_y

@@ -67,7 +67,7 @@ import numpy as np
 
 from measurement.dic import bspline
 from measurement.dic.correlate import DICResult, PreparedImage, prepare_image
-from measurement.dic.icgn import _MONOMIALS, prepare_reference
+from measurement.dic.icgn import MONOMIALS, prepare_reference
 from measurement.dic.status import CONVERGED
 from measurement.speckle_quality import NoiseModel
 
@@ -775,7 +775,7 @@ def cross_hessians(subsets: ReferenceSubsets, target: PreparedImage, parameters:
                    int(target.spline.degree), xs[idx], ys[idx], p[idx], half, order,
                    cross_stride(subsets.subset_size), sub_table, sub_ok)
     table[idx], ok[idx] = sub_table, sub_ok
-    monomials = _MONOMIALS[:nm]
+    monomials = MONOMIALS[:nm]
     S = np.zeros((n, 2 * nm, 2 * nm))
     K = np.zeros((n, 2 * nm, 2 * nm))
     k_base = 4 + 4 * len(second)
