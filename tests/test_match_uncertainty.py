@@ -204,13 +204,12 @@ def _other_view_pair(blur_px, scale, shift=(0.3, 0.45), speckle_px=4.0):
 def _other_view_z(blur_px, scale, order=1, subset=21, seeds=24, read_grey=2.0, mode="cross"):
     """z = error / sigma over the seeds (each point's error about its mean over the seeds; points that converge to
     another minimum in some draw left out, at most 2 %); ``mode``: 'cross' (the target image given), 'reference' (no target: H0),
-    'reused' (a static repeat of the target matched with the first seed's stereo-like match's terms reused),
+    'reused' (a static repeat of the target matched with the terms of the draw's own first match reused),
     'reused wrong' (the same with the reference's own H0 reused instead)."""
     reference, target, field = _other_view_pair(blur_px, scale)
     settings = DICSettings(subset_size=subset, step=10, order=order)
     model = NoiseModel(read_grey, read_grey, None, "given")
     errors, sig = [], []
-    first = None
     for s in range(seeds):
         ref = apply_sensor_noise(reference, read_noise_grey=read_grey, bit_depth=None, seed=2 * s)
         tgt = apply_sensor_noise(target, read_noise_grey=read_grey, bit_depth=None, seed=2 * s + 1)
@@ -227,8 +226,6 @@ def _other_view_z(blur_px, scale, order=1, subset=21, seeds=24, read_grey=2.0, m
             like = stereo if mode == "reused" else subsets
             unc = match_uncertainty(subsets, repeat, target=repeat_image, like=like)
             result = repeat
-        if first is None:
-            first = unc
         errors.append(np.column_stack([result.u, result.v]))
         sig.append(np.column_stack([unc.sigma_u_px, unc.sigma_v_px]))
     errors, sig = np.array(errors), np.array(sig)
