@@ -428,11 +428,16 @@ class AutoRender:
 
     image_grey : (H, W) float32, grey levels before sensor noise
     renderer : :data:`scenes.exact_render.RENDERER` / ``RENDERER_QUADRATURE`` (no Monte Carlo at all),
-        :data:`scenes.exact_render.RENDERER_IN_FOCUS` (a thin lens: in-focus pixels without Monte Carlo, the rest
-        adaptive Mitsuba) or ``"mitsuba-adaptive"``
+        :data:`scenes.defocus_quadrature.RENDERER_THIN_LENS` (a thin lens, no Monte Carlo: in focus and blurred flat
+        faces), :data:`scenes.defocus_quadrature.RENDERER_THIN_LENS_ADAPTIVE` (the same and Mitsuba's adaptive
+        renders for the rest), :data:`scenes.exact_render.RENDERER_IN_FOCUS` (in-focus pixels without Monte Carlo,
+        the rest adaptive Mitsuba) or ``"mitsuba-adaptive"``
     mc : the adaptive render's noise figures (:func:`render_views_adaptive`), None where Mitsuba traced nothing
     known_fraction : share of the view's lit pixels made without Monte Carlo
     fallback : why the deterministic renderer could not be used at all, or None
+    defocus_error_grey : where blurred flat faces were made by quadrature
+        (:func:`scenes.defocus_quadrature.fill_defocused_faces`), the largest RMS error measured for its rules
+        against the dense rule, grey; else None
     """
 
     image_grey: np.ndarray
@@ -440,6 +445,7 @@ class AutoRender:
     mc: dict | None
     known_fraction: float
     fallback: str | None = None
+    defocus_error_grey: float | None = None
 
 
 def render_views_auto(views: list[tuple[SensorSpec, tuple[np.ndarray, np.ndarray]]],
@@ -448,8 +454,9 @@ def render_views_auto(views: list[tuple[SensorSpec, tuple[np.ndarray, np.ndarray
     """Every view of one scene with as little Monte Carlo as the optics allow.
 
     Each view's pixels that need no sampling (:func:`scenes.exact_render.render_view_in_focus`: all of a pinhole
-    view, the in-focus ones of a thin lens) are made deterministically; where any view has pixels left, the
-    adaptive renderer (:func:`render_views_adaptive`, ``settings``) traces just those, all views from one
+    view, the in-focus ones of a thin lens) are made deterministically, and so are a thin-lens view's blurred
+    flat faces, by quadrature over the pixel and the aperture
+    (:func:`scenes.defocus_quadrature.fill_defocused_faces`); where any view has pixels left, the adaptive renderer (:func:`render_views_adaptive`, ``settings``) traces just those, all views from one
     Mitsuba scene. A scene the deterministic renderer refuses (occlusion, a surface behind a camera) is rendered
     by Mitsuba whole, with the reason in ``fallback``. Seeds as :func:`render_views_adaptive`.
     """
@@ -467,11 +474,34 @@ def render_views_auto(views: list[tuple[SensorSpec, tuple[np.ndarray, np.ndarray
             rendered = render_views_adaptive(views, surfaces, seed=seed, exposure_grey=exposure_grey,
                                              settings=settings)
             return [AutoRender(r.image_grey, "mitsuba-adaptive", r.mc, 0.0, f"{err}; {err2}") for r in rendered]
+    if made_by == RENDERER_IN_FOCUS:
+        # blurred flat faces by quadrature over the pixel and the aperture, before any Monte Carlo
+        from scenes.defocus_quadrature import RENDERER_THIN_LENS, fill_defocused_faces
+
+        filled = []
+        for (spec, pose), (image, known, info) in zip(views, parts):
+            if not known.all() and spec.lens == "thin":
+                image, known, extra = fill_defocused_faces(spec, *pose, surfaces, image, known,
+                                                           exposure_grey=exposure_grey)
+                if extra["defocus_pixels"]:
+                    made_by = RENDERER_THIN_LENS
+                    reached = max(int(info["reached_pixels"]), 1)
+                    info = {**info, **extra, "renderer": made_by,
+                            "known_fraction": 1.0 - float((~known).sum()) / reached}
+            filled.append((image, known, info))
+        parts = filled
+    def quadrature_error(info):
+        return max((b["error_grey"] for b in info.get("defocus_bins", [])), default=None)
+
     if all(known.all() for _, known, _ in parts):
-        return [AutoRender(image, info["renderer"], None, 1.0) for image, _, info in parts]
+        return [AutoRender(image, info["renderer"], None, 1.0, defocus_error_grey=quadrature_error(info))
+                for image, _, info in parts]
     rendered = render_views_adaptive(views, surfaces, seed=seed, exposure_grey=exposure_grey, settings=settings,
                                      known=[(image, known) for image, known, _ in parts])
-    return [AutoRender(r.image_grey, made_by, r.mc, float(info["known_fraction"]))
+    if made_by not in (RENDERER_IN_FOCUS, RENDERER_OCCLUSION):
+        from scenes.defocus_quadrature import RENDERER_THIN_LENS_ADAPTIVE as made_by
+    return [AutoRender(r.image_grey, made_by, r.mc, float(info["known_fraction"]),
+                       defocus_error_grey=quadrature_error(info))
             for r, (_, _, info) in zip(rendered, parts)]
 
 

@@ -134,7 +134,7 @@ def _texel_polygons(surface: TexturedSurface, faces: np.ndarray) -> tuple[list[n
     return polys, np.asarray(values, dtype=np.float64), np.asarray(owner, dtype=np.int64)
 
 
-def _project_outlines(spec: SensorSpec, R: np.ndarray, t: np.ndarray, polys: list[np.ndarray],
+def project_outlines(spec: SensorSpec, R: np.ndarray, t: np.ndarray, polys: list[np.ndarray],
                       chord_tol_px: float) -> tuple[np.ndarray, np.ndarray]:
     """Every world polygon's outline in pixels, each edge split so its projection stays within the tolerance
     of its straight pieces; flat: (N, 2) vertices and (P + 1,) starts."""
@@ -192,14 +192,14 @@ def closed_surface(surfaces: list[TexturedSurface]) -> bool:
 
 def _corner_rays(spec: SensorSpec, x0: int, y0: int, w: int, h: int) -> np.ndarray:
     """(h + 1, w + 1, 3) camera-frame ray directions ``(x_n, y_n, 1)`` through the corners of a crop's pixels."""
-    xy = _sensor_corner_coordinates(spec)[y0:y0 + h + 1, x0:x0 + w + 1]
+    xy = sensor_corner_coordinates(spec)[y0:y0 + h + 1, x0:x0 + w + 1]
     if not np.all(np.isfinite(xy)):
         raise NotExactError("the lens distortion cannot be inverted over the textured surface's pixels")
     return np.concatenate([xy, np.ones(xy.shape[:2] + (1,))], axis=2)
 
 
 @functools.lru_cache(maxsize=4)
-def _sensor_corner_coordinates(spec: SensorSpec) -> np.ndarray:
+def sensor_corner_coordinates(spec: SensorSpec) -> np.ndarray:
     """Ideal (undistorted) coordinates of every pixel corner of the sensor, (H + 1, W + 1, 2), read-only.
 
     Undistorting is the costliest part of a view that is not the quadrature itself (~1 s for a 5 MP crop), and
@@ -254,7 +254,7 @@ def render_view_exact(spec: SensorSpec, R_cam_from_world: np.ndarray, t_cam_from
     cull = closed_surface(surfaces)
     drawn, emitting = [], []
     for surface in surfaces:
-        facing = _facing_distance_mm(surface, -R.T @ t) > 0          # the emitting side is seen
+        facing = facing_distance_mm(surface, -R.T @ t) > 0          # the emitting side is seen
         drawn.append(facing if cull else np.ones(len(facing), dtype=bool))
         emitting.append(facing)
     image, coverage, info = _draw(spec, R, t, surfaces, drawn, emitting, exposure_grey, chord_tol_px,
@@ -295,7 +295,7 @@ def render_view_in_focus(spec: SensorSpec, R_cam_from_world: np.ndarray, t_cam_f
     image_grey : (height, width) float32, the known pixels' grey levels (0 elsewhere)
     known : (height, width) bool
     info : :func:`render_view_exact`'s, with ``known_fraction`` (of the pixels where any surface is seen or
-        spills), ``max_blur_px`` and ``sharp_faces`` / ``blurred_faces``
+        spills, ``reached_pixels`` of them), ``max_blur_px`` and ``sharp_faces`` / ``blurred_faces``
 
     Raises
     ------
@@ -306,7 +306,7 @@ def render_view_in_focus(spec: SensorSpec, R_cam_from_world: np.ndarray, t_cam_f
         image, info = render_view_exact(spec, R_cam_from_world, t_cam_from_world_mm, surfaces,
                                         exposure_grey=exposure_grey, chord_tol_px=chord_tol_px,
                                         quadrature_order=quadrature_order)
-        info.update(known_fraction=1.0, max_blur_px=0.0)
+        info.update(known_fraction=1.0, max_blur_px=0.0, reached_pixels=int(image.size))
         return image, np.ones(image.shape, dtype=bool), info
     if not surfaces:
         raise ValueError("nothing to render: no surfaces given")
@@ -324,7 +324,7 @@ def render_view_in_focus(spec: SensorSpec, R_cam_from_world: np.ndarray, t_cam_f
     sharp, emitting, other = [], [], []
     other_blur_px = 0.0
     for surface in surfaces:
-        distance = _facing_distance_mm(surface, centre)
+        distance = facing_distance_mm(surface, centre)
         # a face whose plane passes through the aperture is seen from one side by part of it: never sharp
         front, back = distance > aperture_radius_mm, distance < -aperture_radius_mm
         faces = np.asarray(surface.faces, dtype=int)
@@ -344,7 +344,7 @@ def render_view_in_focus(spec: SensorSpec, R_cam_from_world: np.ndarray, t_cam_f
         tris = [np.asarray(s.vertices_mm, dtype=float)[np.asarray(s.faces, dtype=int)[o]]
                 for s, o in zip(surfaces, other)]
         polys = list(np.concatenate([tri for tri in tris if len(tri)]))
-        xy, starts = _project_outlines(spec, R, t, polys, max(chord_tol_px, 0.05))
+        xy, starts = project_outlines(spec, R, t, polys, max(chord_tol_px, 0.05))
         # a blurred face just outside the sensor spills onto its edge: the window reaches past the sensor
         r = reach_other + 1
         x0 = int(np.clip(np.floor(xy[:, 0].min()) - r, -r, spec.width + r))
@@ -369,7 +369,8 @@ def render_view_in_focus(spec: SensorSpec, R_cam_from_world: np.ndarray, t_cam_f
                 back_faces_culled=bool(cull), max_blur_px=float(max_blur_px),
                 sharp_faces=int(sum(int(s.sum()) for s in sharp)),
                 blurred_faces=int(sum(int(o.sum()) for o in other)),
-                known_fraction=float((known & reached).sum() / max(int(reached.sum()), 1)))
+                known_fraction=float((known & reached).sum() / max(int(reached.sum()), 1)),
+                reached_pixels=int(reached.sum()))
     return image, known, info
 
 
@@ -404,7 +405,7 @@ def render_view_occluded(spec: SensorSpec, R_cam_from_world: np.ndarray, t_cam_f
     t = np.asarray(t_cam_from_world_mm, dtype=float).reshape(3)
     cull = closed_surface(surfaces)
     centre = -R.T @ t
-    facing = [_facing_distance_mm(s, centre) > 0 for s in surfaces]
+    facing = [facing_distance_mm(s, centre) > 0 for s in surfaces]
     candidates = [f if cull else np.ones(len(f), dtype=bool) for f in facing]
     V = np.concatenate([np.asarray(s.vertices_mm, dtype=float) for s in surfaces])
     offsets = np.cumsum([0] + [len(s.vertices_mm) for s in surfaces[:-1]])
@@ -452,11 +453,12 @@ def render_view_occluded(spec: SensorSpec, R_cam_from_world: np.ndarray, t_cam_f
     lit = coverage > 0
     reached = ~known | lit
     info.update(back_faces_culled=bool(cull), hidden_faces=int(sum(int((c & ~d).sum()) for c, d in zip(candidates, drawn))),
-                known_fraction=float((known & reached).sum() / max(int(reached.sum()), 1)))
+                known_fraction=float((known & reached).sum() / max(int(reached.sum()), 1)),
+                reached_pixels=int(reached.sum()))
     return image, known, info
 
 
-def _facing_distance_mm(surface: TexturedSurface, centre_world_mm: np.ndarray) -> np.ndarray:
+def facing_distance_mm(surface: TexturedSurface, centre_world_mm: np.ndarray) -> np.ndarray:
     """Signed distance of the camera centre from every face's plane, mm (> 0: the emitting side is seen)."""
     faces = np.asarray(surface.faces, dtype=int)
     V = np.asarray(surface.vertices_mm, dtype=float)
@@ -507,7 +509,7 @@ def _draw(spec, R, t, surfaces, drawn, emitting, exposure_grey, chord_tol_px, qu
     coverage = np.zeros((spec.height, spec.width), dtype=np.float64)
     if not polys:
         return image, coverage, info
-    xy, starts = _project_outlines(spec, R, t, polys, chord_tol_px)
+    xy, starts = project_outlines(spec, R, t, polys, chord_tol_px)
     box = _pixel_box(xy, spec, 1)
     if box is None:
         return image, coverage, info

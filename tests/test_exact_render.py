@@ -320,38 +320,38 @@ def test_a_defocused_plate_is_left_to_mitsuba_and_the_blur_limit_is_what_keeps_i
 
 
 def test_thin_lens_views_made_with_as_little_monte_carlo_as_the_optics_allow_equal_mitsuba(oblique_plate):
-    """``render_views_auto`` on the oblique plate: the tilted camera is all in focus (>= 95 % of its pixels
-    without Monte Carlo, its sensor's edge ring traced), the untilted one is Mitsuba's adaptive render. Each whole
-    image equals the converged thin-lens render within sqrt(reference noise^2 + measured adaptive noise^2 +
-    0.1^2) grey RMS, with no bias."""
+    """``render_views_auto`` on the oblique plate: the tilted camera in focus, the untilted one's blurred plate by
+    quadrature over the pixel and the aperture (scenes.defocus_quadrature): no Monte Carlo in either. Each whole
+    image equals the converged thin-lens render within sqrt(reference noise^2 + 0.1^2) grey RMS, with no bias."""
     from scenes.adaptive import AdaptiveSettings, render_views_auto
-    from scenes.exact_render import RENDERER_IN_FOCUS
+    from scenes.defocus_quadrature import RENDERER_DEFOCUS
 
     scene, surfaces = oblique_plate
     views = [(scene.specs[n], (np.eye(3), np.zeros(3))) for n in ("scheimpflug", "conventional")]
     made = render_views_auto(views, surfaces, seed=5, exposure_grey=255.0,
                              settings=AdaptiveSettings(target_mc_grey=0.5))
-    assert [m.renderer for m in made] == [RENDERER_IN_FOCUS] * 2
-    assert made[0].known_fraction >= 0.95 and made[1].known_fraction == 0.0
+    assert all(m.renderer.endswith(RENDERER_DEFOCUS) and m.mc is None and m.known_fraction == 1.0 for m in made)
+    assert made[1].defocus_error_grey is not None and made[1].defocus_error_grey <= 0.03 + 1e-12
     for (spec, pose), m in zip(views, made):
         mean, noise = _converged_mitsuba(spec, pose, surfaces, spp=256)
         diff = m.image_grey - mean
-        bound = np.sqrt(np.mean(noise ** 2) + m.mc["mc_rms_grey"] ** 2 + SPECKLE_ERROR_GREY ** 2)
+        bound = np.sqrt(np.mean(noise ** 2) + SPECKLE_ERROR_GREY ** 2)
         assert np.sqrt(np.mean(diff ** 2)) <= bound, (spec.beta_deg, np.sqrt(np.mean(diff ** 2)), bound)
         assert abs(diff.mean()) < 4 * bound / np.sqrt(diff.size) + 1e-3
 
 
 def test_the_speckle_pipeline_renders_thin_lenses_in_focus_first_when_adaptive(tmp_path):
     """With an MC noise target, a thin-lens sequence (the Scheimpflug rig: its face in focus) is made by the
-    in-focus path (its images say so, with the share of pixels made without Monte Carlo, most of them here); the
-    dataset hash carries the renderer (other images, other hash)."""
-    from scenes.exact_render import RENDERER_IN_FOCUS
+    in-focus path, its blurred flat faces by quadrature and the rest (silhouette) by Mitsuba (its images say so,
+    with the share of pixels made without Monte Carlo, most of them here); the dataset hash carries the renderer
+    (other images, other hash)."""
+    from scenes.defocus_quadrature import RENDERER_THIN_LENS_ADAPTIVE
     from workbench.experiments.rigid_motion.scenes import load_truth, render_rigid_motion, speckle_render_content
 
     render_rigid_motion("scheimpflug", tmp_path / "thin", scale=0.1, lens="thin", states=[0.0], progress=False,
                         mc_target_grey=0.5)
     info = load_truth(tmp_path / "thin").info["render"]
-    assert info["renderers"] == {RENDERER_IN_FOCUS: 2}
+    assert info["renderers"] == {RENDERER_THIN_LENS_ADAPTIVE: 2}
     assert all(0.5 < image["known_fraction"] <= 1.0 for image in info["images"])
     assert speckle_render_content("auto", "thin", 0.5) != speckle_render_content("auto", "thin", None) == {}
 

@@ -117,6 +117,14 @@ SPECKLE_RENDERER_TEXT = {
     "in-focus-quadrature+mitsuba-adaptive": "through thin lenses: the pixels in focus (blur circle <= 0.1 px) "
                                             "without Monte Carlo as above, the blurred rest (end faces, "
                                             "silhouette) by Mitsuba, adaptive (scenes.adaptive.render_views_auto)",
+    "in-focus-quadrature+defocus-quadrature": "through thin lenses without Monte Carlo: the pixels in focus as "
+                                              "above, the blurred flat faces by quadrature over the pixel and the "
+                                              "aperture (scenes.defocus_quadrature)",
+    "in-focus-quadrature+defocus-quadrature+mitsuba-adaptive": "through thin lenses: the pixels in focus and the "
+                                                               "blurred flat faces without Monte Carlo (quadrature "
+                                                               "over the pixel and the aperture), the rest "
+                                                               "(silhouettes, faces that are not flat) by Mitsuba, "
+                                                               "adaptive (scenes.adaptive.render_views_auto)",
     "mitsuba-adaptive": "by Mitsuba, adaptive (scenes.adaptive)",
     "mitsuba": "by Mitsuba at a fixed spp",
 }
@@ -127,12 +135,13 @@ def render_lines(m: dict) -> list[str]:
     adaptive Monte-Carlo renders' measured noise and cost (nothing for metrics without either)."""
     lines = []
     made = m.get("speckle_renderers") or {}
-    hybrid = "in-focus-quadrature+mitsuba-adaptive"
-    if made.get(hybrid):
-        shares = m.get("speckle_known_fraction")
-        lines.append(f"Renders: {made[hybrid]} images {SPECKLE_RENDERER_TEXT[hybrid]}"
-                     + (f"; {100 * shares[0]:.1f}-{100 * shares[1]:.1f} % of each image's lit pixels without Monte "
-                        "Carlo" if shares else "") + ".")
+    for hybrid in ("in-focus-quadrature+mitsuba-adaptive", "in-focus-quadrature+defocus-quadrature+mitsuba-adaptive",
+                   "in-focus-quadrature+defocus-quadrature"):
+        if made.get(hybrid):
+            shares = m.get("speckle_known_fraction")
+            lines.append(f"Renders: {made[hybrid]} images {SPECKLE_RENDERER_TEXT[hybrid]}"
+                         + (f"; {100 * shares[0]:.1f}-{100 * shares[1]:.1f} % of each image's lit pixels without "
+                            "Monte Carlo" if shares else "") + ".")
     if made.get("polygon-quadrature"):
         lines.append(f"Renders: {made['polygon-quadrature']} images {SPECKLE_RENDERER_TEXT['polygon-quadrature']}"
                      + (f"; {sum(v for k, v in made.items() if k != 'polygon-quadrature')} by Mitsuba where a view "

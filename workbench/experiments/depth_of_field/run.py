@@ -183,7 +183,8 @@ def run_depth_of_field_study(scale: float = 0.5, object_tilt_deg: float = 38.0, 
 
     The plate moves by ``shift_px`` pixels' worth (at its centre) along its own x axis between the two renders.
     ``mc_target_grey``: both cameras from one scene with :func:`scenes.adaptive.render_views_auto` (the pixels in
-    focus without Monte Carlo, the blurred rest adaptive at that Monte-Carlo noise; ``spp`` unused); the
+    focus and the blurred plate without Monte Carlo, anything left adaptive at that Monte-Carlo noise; ``spp``
+    unused); the
     measured noise, renderer and share of pixels made without Monte Carlo per image are in
     ``figures[camera]["render_mc"]``.
     Returns ``(scene, images {"static"|"moved": {camera: image}}, figures per camera)``.
@@ -209,7 +210,8 @@ def run_depth_of_field_study(scale: float = 0.5, object_tilt_deg: float = 38.0, 
             images[key] = {n: r.image_grey for n, r in zip(names, rendered)}
             # no Monte Carlo at all (every pixel in focus): 0 noise, target met
             mc[key] = {n: {**(r.mc or {"mc_rms_grey": 0.0, "target_met": True}), "renderer": r.renderer,
-                           "known_fraction": r.known_fraction} for n, r in zip(names, rendered)}
+                           "known_fraction": r.known_fraction, "defocus_error_grey": r.defocus_error_grey}
+                       for n, r in zip(names, rendered)}
     figures = depth_of_field_dic(scene, images["static"], images["moved"], shift, noise_grey=noise_grey,
                                  subset_size=subset_size, step=step, seed=seed)
     for name in scene.specs:
@@ -226,9 +228,16 @@ def _render_text(metrics: dict) -> str:
     rms = [r["mc_rms_grey"] for c in metrics["cameras"].values() for r in c.get("render_mc", {}).values()]
     shares = {name: min(r.get("known_fraction", 0.0) for r in c.get("render_mc", {}).values())
               for name, c in metrics["cameras"].items()}
-    text = (f"the pixels in focus (blur circle <= 0.1 px) without Monte Carlo (at least "
-            + ", ".join(f"{100 * v:.0f} % of the {k} camera's" for k, v in shares.items())
-            + f"), the blurred rest by adaptive sampling (Monte-Carlo noise target {metrics['mc_target_grey']:g} "
+    quadrature = [r.get("defocus_error_grey") for c in metrics["cameras"].values()
+                  for r in c.get("render_mc", {}).values() if r.get("defocus_error_grey") is not None]
+    if all(v >= 1.0 for v in shares.values()):
+        return ("every pixel without Monte Carlo: in focus (blur circle <= 0.1 px) by quadrature over the pixel"
+                + (f", blurred by quadrature over the pixel and the aperture (each blur's rule within "
+                   f"{max(quadrature):.3f} grey RMS of a rule 4-5x denser, scenes.defocus_quadrature)"
+                   if quadrature else ""))
+    text = (f"the pixels in focus (blur circle <= 0.1 px) and the blurred plate's without Monte Carlo "
+            "(at least " + ", ".join(f"{100 * v:.0f} % of the {k} camera's" for k, v in shares.items())
+            + f"), the rest (edges) by adaptive sampling (Monte-Carlo noise target {metrics['mc_target_grey']:g} "
             f"grey, measured {max(rms):.3f} grey RMS at most over the sampled pixels)")
     # a camera whose renders missed the target says so: its noise floor and MIG carry the extra render noise
     missed = {name: max(r["mc_rms_grey"] for r in c["render_mc"].values())
@@ -246,8 +255,8 @@ def reproduce_depth_of_field(out_dir, *, scale: float = 1.0, object_tilt_deg: fl
                              mc_target_grey: float | None = None, shift_px: float = 0.4) -> dict:
     """Write ``metrics.json``, ``report.md``, ``side_by_side.png`` and ``dic_maps.png`` (tilted vs untilted).
 
-    ``mc_target_grey``: renders without Monte Carlo where in focus, adaptive at that Monte-Carlo noise elsewhere
-    (:func:`scenes.adaptive.render_views_auto`) instead of ``spp``. ``shift_px``: the in-plane move of the plate
+    ``mc_target_grey``: renders without Monte Carlo where in focus or on the blurred plate, adaptive at that
+    Monte-Carlo noise elsewhere (:func:`scenes.adaptive.render_views_auto`) instead of ``spp``. ``shift_px``: the in-plane move of the plate
     between the two renders, pixels at its centre (recorded in the metrics for the report)."""
     import json
     from pathlib import Path

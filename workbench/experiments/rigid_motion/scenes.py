@@ -382,7 +382,7 @@ def render_stereo_states(truth, surfaces_of_state, n_states: int, out_dir: Path,
     axis (:meth:`scenes.camera.SensorSpec.supersampled`) and brought back through ``optics`` (binned). Returns the
     file names per state.
     """
-    from scenes.exact_render import RENDERER_IN_FOCUS, RENDERER_OCCLUSION, NotExactError, render_view_exact
+    from scenes.exact_render import RENDERER_OCCLUSION, NotExactError, render_view_exact
 
     if renderer not in SPECKLE_RENDERERS:
         raise ValueError(f"speckle renderer {renderer!r}: choose one of {', '.join(SPECKLE_RENDERERS)}")
@@ -416,7 +416,7 @@ def render_stereo_states(truth, surfaces_of_state, n_states: int, out_dir: Path,
                 rendered, made_by, mc = auto[c].image_grey, auto[c].renderer, auto[c].mc
                 if auto[c].fallback:
                     entry["fallback"] = auto[c].fallback
-                elif made_by in (RENDERER_IN_FOCUS, RENDERER_OCCLUSION):
+                elif made_by == RENDERER_OCCLUSION or made_by.startswith("in-focus"):   # any thin-lens mix
                     entry["known_fraction"] = round(auto[c].known_fraction, 6)
             elif exact is not None:
                 rendered, made_by = exact[c][0], exact[c][1]["renderer"]

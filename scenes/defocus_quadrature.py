@@ -1,0 +1,572 @@
+"""Thin-lens pixels of flat painted faces without Monte Carlo: a quadrature over the pixel and the aperture.
+
+Through the project's thin lens (:mod:`scenes.camera`) a pixel is the mean radiance, over its square on the
+sensor and over the aperture disc, of the rays that leave a point ``a`` of the disc towards the conjugate ``F``
+of the sensor point in the plane of sharp focus. Where every such ray of a pixel meets one flat face whose
+texture coordinates are an affine map of its plane (a speckled plate, a specimen's flat face), the radiance of a
+ray is the texture's bilinear value at its hit, so the pixel is a 4-D integral of a smooth function over
+(pixel square) x (disc), with no approximation in the geometry. This module evaluates it with a product rule:
+
+* pixel: ``n_p x n_p`` Gauss-Legendre nodes;
+* disc: ``n_r`` rings, Gauss-Legendre in ``r^2`` (the uniform measure Mitsuba samples), ``n_t`` equally spaced
+  angles per ring, the angles of pixel node ``j`` turned by ``j / n_p^2`` of a step so that the blur offsets of
+  the pixel's nodes interleave.
+
+A ray of the disc lands within the blur radius ``rho`` of the pixel in the pinhole image, so the rule a pixel
+needs grows with ``rho``. It is **measured, not assumed**: per blur bin, candidate rules are run on the view's
+own texture at its finest scale on the sensor (isotropic, the face's largest texels-per-pixel) against a rule a
+few times denser, and the cheapest within ``tolerance_grey`` RMS is used; each bin's rule, node count and
+measured error are returned. The whole renderer is checked against converged Mitsuba renders
+(``tests/test_defocus_quadrature.py``, ``benchmarks/render_defocus.py``).
+
+Which pixels: a ray of the pixel's bundle meets the face at a point whose pinhole image lies within the blur
+radius there; a pixel is made here when every pixel within its blur radius (+ :data:`EDGE_MARGIN_PX`) is wholly
+covered by the flat face group (exact coverage, :mod:`scenes.coverage_raster`) and no other face's footprint,
+widened by that face's own blur, reaches it. What is left (blurred silhouettes, curved or slanted faces, prints)
+stays for Mitsuba's adaptive renderer (:func:`scenes.adaptive.render_views_auto`).
+"""
+from __future__ import annotations
+
+import functools
+import math
+
+import numba
+import numpy as np
+
+from scenes.camera import SensorSpec
+from scenes.coverage_raster import accumulate_flat
+from scenes.exact_render import (NotExactError, closed_surface, facing_distance_mm, project_outlines,
+                                 sensor_corner_coordinates)
+from scenes.surfaces import TexturedSurface
+
+#: Name of this module's part of a render.
+RENDERER_DEFOCUS = "defocus-quadrature"
+#: Name recorded with a thin-lens image made whole without Monte Carlo: the in-focus pixels by
+#: :func:`scenes.exact_render.render_view_in_focus`, the blurred flat faces here.
+RENDERER_THIN_LENS = "in-focus-quadrature+defocus-quadrature"
+#: ... and with one whose remaining pixels (blurred silhouettes, faces that are not flat) Mitsuba traced.
+RENDERER_THIN_LENS_ADAPTIVE = "in-focus-quadrature+defocus-quadrature+mitsuba-adaptive"
+#: Default largest RMS error of a bin's rule against the dense rule, grey levels.
+DEFAULT_TOLERANCE_GREY = 0.03
+#: Pixels kept between a pixel's blur circle and the edge of its face group (or another face's reach), px.
+EDGE_MARGIN_PX = 2.0
+#: A pixel's blur circle is taken this much larger where it is kept clear of edges (a tilted sensor
+#: stretches the circle into an ellipse by a few per cent).
+BLUR_MARGIN = 1.1
+#: Upper edges of the blur-radius bins grow by this factor (px): a bin's rule is measured at its upper edge.
+BIN_GROWTH = 1.1
+#: Smallest bin edge, px (the in-focus renderer takes blur radii <= 0.05 px).
+FIRST_BIN_PX = 0.05
+#: Largest blur radius a pixel may have here, px (its edge distance is looked for no farther).
+MAX_REACH_PX = 200.0
+#: Flat face groups tried per surface (the largest by area); a curved mesh's triangles are left to Mitsuba.
+MAX_GROUPS = 8
+#: Texture points and dense-rule density (nodes per texture detail length) of a bin's calibration.
+CALIBRATION_POINTS = 160
+DENSE_NODES_PER_DETAIL = 4.0
+
+
+# --- the rule ---------------------------------------------------------------------------------------------
+@functools.lru_cache(maxsize=64)
+def _gauss_legendre_unit(n: int) -> tuple[np.ndarray, np.ndarray]:
+    x, w = np.polynomial.legendre.leggauss(int(n))
+    return 0.5 * (x + 1.0), 0.5 * w
+
+
+def _ring_angles(n_rings: int, n_angles: int) -> list[int]:
+    """Angles on each ring: ``n_angles`` on the outermost, fewer inwards in proportion to the radius (the
+    texture a ring crosses is as long as its circumference)."""
+    s, _ = _gauss_legendre_unit(n_rings)
+    r = np.sqrt(s)
+    return [max(1, math.ceil(n_angles * rk / r[-1] - 1e-9)) for rk in r]
+
+
+def rule_size(n_pixel: int, n_rings: int, n_angles: int) -> int:
+    """Nodes of :func:`thin_lens_rule`."""
+    return n_pixel * n_pixel * sum(_ring_angles(n_rings, n_angles))
+
+
+@functools.lru_cache(maxsize=1024)
+def thin_lens_rule(n_pixel: int, n_rings: int, n_angles: int) -> np.ndarray:
+    """Nodes of the product rule over the unit pixel square and the unit disc (module notes).
+
+    ``n_angles`` is the count on the outermost ring; ring k has ``ceil(n_angles r_k / r_outer)``.
+
+    Returns
+    -------
+    (:func:`rule_size`, 5) float, read-only: pixel position (px, py) in [0, 1]^2 from the pixel's top-left
+    corner, aperture position (ax, ay) on the unit disc, weight (the weights sum to 1).
+    """
+    if min(n_pixel, n_rings, n_angles) < 1:
+        raise ValueError(f"rule sizes must be >= 1, got {n_pixel}, {n_rings}, {n_angles}")
+    xs, ws = _gauss_legendre_unit(n_pixel)
+    s, wr = _gauss_legendre_unit(n_rings)
+    per_ring = _ring_angles(n_rings, n_angles)
+    m = n_pixel * n_pixel
+    out = np.empty((rule_size(n_pixel, n_rings, n_angles), 5))
+    i = 0
+    for jy in range(n_pixel):
+        for jx in range(n_pixel):
+            j = jy * n_pixel + jx
+            for k in range(n_rings):
+                na = per_ring[k]
+                theta = 2 * np.pi * (np.arange(na) + 0.5 * (k % 2) + j / m) / na
+                r = math.sqrt(s[k])
+                sl = slice(i, i + na)
+                out[sl, 0], out[sl, 1] = xs[jx], xs[jy]
+                out[sl, 2], out[sl, 3] = r * np.cos(theta), r * np.sin(theta)
+                out[sl, 4] = ws[jx] * ws[jy] * wr[k] / na
+                i += na
+    out.setflags(write=False)
+    return out
+
+
+@functools.lru_cache(maxsize=256)
+def _ring_ratios(n_rings: int) -> np.ndarray:
+    s, _ = _gauss_legendre_unit(n_rings)
+    return np.sqrt(s) / math.sqrt(s[-1])
+
+
+def _candidates(rho_px: float, detail_px: float, at_least: int = 0) -> list[tuple[int, int, int]]:
+    """Rules to try for a blur radius, cheapest first, from ``0.8 * at_least`` nodes (the previous, smaller
+    blur's rule: the next needs about as many or more): pixel orders 2-8, up to 3 rings and 3 rim angles
+    per detail length (at least 16 angles per pixel node)."""
+    most = 3.0 / detail_px
+    out = []
+    for n_p in (2, 3, 4, 6, 8):
+        m = n_p * n_p
+        n_t = np.arange(1, max(math.ceil(2 * math.pi * rho_px * most / 2), 16) + 2)
+        for n_r in range(1, math.ceil(rho_px * most) + 3):
+            sizes = m * np.ceil(np.outer(n_t, _ring_ratios(n_r)) - 1e-9).sum(axis=1).astype(int)
+            for t, size in zip(n_t, sizes):
+                if size >= 0.8 * at_least:
+                    out.append((int(size), n_p, n_r, int(t)))
+    out.sort()
+    return [c[1:] for c in out]
+
+
+def _dense(rho_px: float, detail_px: float) -> tuple[int, int, int]:
+    """The reference rule: every pixel node with its own full ring of angles (no reliance on interleaving);
+    against a rule 4-5x denser still it differs by ~0.001-0.005 grey on the paper's 5 px speckle."""
+    density = max(3.0, DENSE_NODES_PER_DETAIL / detail_px)
+    return (12 if rho_px < 0.5 else 6 if rho_px < 2 else 4), math.ceil(rho_px * density) + 2, \
+        math.ceil(2 * math.pi * rho_px * density) + 6
+
+
+@numba.njit(cache=True, parallel=True)
+def _model_values(texture, centres, J, rho, rule):
+    """The rule on the affine model of a view: texel = centre + J (p - 1/2 - rho a), per centre."""
+    rows, cols = texture.shape
+    out = np.empty(len(centres))
+    for i in numba.prange(len(centres)):
+        acc = 0.0
+        for j in range(rule.shape[0]):
+            dx = rule[j, 0] - 0.5 - rho * rule[j, 2]
+            dy = rule[j, 1] - 0.5 - rho * rule[j, 3]
+            acc += rule[j, 4] * _bilinear(texture, rows, cols, centres[i, 0] + J[0, 0] * dx + J[0, 1] * dy,
+                                          centres[i, 1] + J[1, 0] * dx + J[1, 1] * dy)
+        out[i] = acc
+    return out
+
+
+@numba.njit(cache=True, inline="always")
+def _bilinear(texture, rows, cols, x, y):
+    """Mitsuba's bilinear lookup (texel centres at integers, clamp to the edge); ``rows, cols >= 2``."""
+    x = min(max(x, 0.0), cols - 1.0)
+    y = min(max(y, 0.0), rows - 1.0)
+    i0 = min(int(x), cols - 2)
+    j0 = min(int(y), rows - 2)
+    fx = x - i0
+    fy = y - j0
+    top = texture[j0, i0] + fx * (texture[j0, i0 + 1] - texture[j0, i0])
+    bottom = texture[j0 + 1, i0] + fx * (texture[j0 + 1, i0 + 1] - texture[j0 + 1, i0])
+    return top + fy * (bottom - top)
+
+
+def texture_detail_texels(texture: np.ndarray) -> float:
+    """The texture's detail length, texels: its standard deviation over the RMS of its gradient (~0.3 x the
+    speckle diameter of :func:`scenes.speckle.speckle_pattern`), on a central window of at most 1024^2."""
+    t = np.asarray(texture)
+    r0, c0 = max(0, t.shape[0] // 2 - 512), max(0, t.shape[1] // 2 - 512)
+    t = t[r0:r0 + 1024, c0:c0 + 1024].astype(np.float64)
+    if min(t.shape) < 3:
+        return 1.0
+    gy, gx = np.gradient(t)
+    g = math.sqrt(float(np.mean(gx ** 2 + gy ** 2)))
+    return float(t.std() / g) if g > 0 else float("inf")
+
+
+#: Rules chosen so far, by texture fingerprint, Jacobian, blur radius, exposure, tolerance and seed.
+_RULES: dict = {}
+
+
+def texture_fingerprint(texture: np.ndarray) -> tuple:
+    """What :func:`choose_rule` remembers a texture by: its shape, sum and sum of squares."""
+    t = np.asarray(texture, dtype=np.float32)
+    return t.shape, float(t.sum(dtype=np.float64)), float(np.square(t, dtype=np.float64).sum())
+
+
+def choose_rule(texture: np.ndarray, jacobian_texels_per_px: np.ndarray, rho_px: float, exposure_grey: float,
+                tolerance_grey: float = DEFAULT_TOLERANCE_GREY, seed: int = 0, *,
+                detail_texels: float | None = None, fingerprint: tuple | None = None, at_least: int = 0) -> dict:
+    """The cheapest candidate rule whose RMS error against the dense rule is within ``tolerance_grey``.
+
+    Measured on :data:`CALIBRATION_POINTS` random points of ``texture`` seen through the affine map
+    ``jacobian_texels_per_px`` (2 x 2, d texel / d pixel) with a blur radius ``rho_px``. Returns ``{"rule":
+    (n_p, n_r, n_t), "nodes", "error_grey", "dense": (n_p, n_r, n_t)}``; the dense rule itself where no
+    candidate meets the tolerance. Candidates start from ``0.8 * at_least`` nodes (the rule of the next smaller
+    blur). Remembered per ``fingerprint`` (:func:`texture_fingerprint`) when given.
+    """
+    J = np.asarray(jacobian_texels_per_px, dtype=np.float64).reshape(2, 2)
+    key = None
+    if fingerprint is not None:
+        key = (fingerprint, tuple(np.round(J.ravel(), 4)), round(float(rho_px), 6), float(exposure_grey),
+               float(tolerance_grey), int(seed), int(at_least))
+        if key in _RULES:
+            return _RULES[key]
+    tex = np.ascontiguousarray(texture, dtype=np.float32)
+    if detail_texels is None:
+        detail_texels = texture_detail_texels(tex)
+    stretch = float(np.linalg.svd(J, compute_uv=False)[0])
+    detail_px = max(detail_texels / stretch, 0.25)
+    rng = np.random.default_rng(seed)
+    reach = stretch * (rho_px + 1.0) + 2.0
+    lo = np.minimum(reach, 0.5 * np.array(tex.shape[::-1]))
+    centres = rng.uniform(lo, np.array(tex.shape[::-1]) - lo, size=(CALIBRATION_POINTS, 2))
+    dense = _dense(rho_px, detail_px)
+    ref = _model_values(tex, centres, J, rho_px, thin_lens_rule(*dense))
+    dense_nodes = rule_size(*dense)
+    result = {"rule": dense, "nodes": dense_nodes, "error_grey": 0.0, "dense": dense}
+    for cand in _candidates(rho_px, detail_px, at_least):
+        nodes = rule_size(*cand)
+        if nodes >= dense_nodes:
+            break
+        got = _model_values(tex, centres, J, rho_px, thin_lens_rule(*cand))
+        err = float(exposure_grey * np.sqrt(np.mean((got - ref) ** 2)))
+        if err <= tolerance_grey:
+            result = {"rule": cand, "nodes": nodes, "error_grey": err, "dense": dense}
+            break
+    if key is not None:
+        if len(_RULES) > 4096:
+            _RULES.clear()
+        _RULES[key] = result
+    return result
+
+
+# --- the view ---------------------------------------------------------------------------------------------
+@numba.njit(cache=True, inline="always")
+def _focus_point(xy, r, c, cx, cy, fx, fy, e1z, e2z, v_mm, F_mm):
+    """The conjugate, in the plane of sharp focus, of sensor corner (r, c) (camera frame, mm), as the plugin
+    computes it: along the undistorted chief ray at the depth conjugate to the corner's distance behind the lens."""
+    s = (c - 0.5 - cx) / fx
+    t = (r - 0.5 - cy) / fy
+    pz = 1.0 + s * e1z + t * e2z
+    z_o = 1.0 / (1.0 / F_mm - 1.0 / (v_mm * pz))
+    return xy[r, c, 0] * z_o, xy[r, c, 1] * z_o, z_o
+
+
+@numba.njit(cache=True, parallel=True)
+def _blur_and_scale(xy, r0, r1, c0, c1, cx, cy, fx, fy, e1z, e2z, v_mm, F_mm, A_mm, n, d, M, m):
+    """Per pixel of rows [r0, r1) x cols [c0, c1): the blur radius (px, largest at its corners) of the plane's
+    point on each corner's chief ray, the largest singular value of d texel / d pixel (texels per px) and
+    that Jacobian ([[du/dx, du/dy], [dv/dx, dv/dy]], flat)."""
+    h, w = r1 - r0, c1 - c0
+    rho = np.empty((h + 1, w + 1))
+    tu = np.empty((h + 1, w + 1))
+    tv = np.empty((h + 1, w + 1))
+    for i in numba.prange(h + 1):
+        for j in range(w + 1):
+            X, Y, Z = _focus_point(xy, r0 + i, c0 + j, cx, cy, fx, fy, e1z, e2z, v_mm, F_mm)
+            den = n[0] * X + n[1] * Y + n[2] * Z
+            lam = d / den if den != 0.0 else -1.0
+            if lam <= 0.0:
+                rho[i, j] = np.inf
+                tu[i, j] = np.nan
+                tv[i, j] = np.nan
+                continue
+            rho[i, j] = A_mm * abs(lam - 1.0) * fx / (lam * Z)
+            tu[i, j] = lam * (M[0, 0] * X + M[0, 1] * Y + M[0, 2] * Z) + m[0]
+            tv[i, j] = lam * (M[1, 0] * X + M[1, 1] * Y + M[1, 2] * Z) + m[1]
+    out_rho = np.empty((h, w))
+    out_scale = np.empty((h, w))
+    out_J = np.empty((h, w, 4), dtype=np.float32)
+    for i in numba.prange(h):
+        for j in range(w):
+            out_rho[i, j] = max(max(rho[i, j], rho[i, j + 1]), max(rho[i + 1, j], rho[i + 1, j + 1]))
+            a = 0.5 * (tu[i, j + 1] - tu[i, j] + tu[i + 1, j + 1] - tu[i + 1, j])
+            b = 0.5 * (tu[i + 1, j] - tu[i, j] + tu[i + 1, j + 1] - tu[i, j + 1])
+            cc = 0.5 * (tv[i, j + 1] - tv[i, j] + tv[i + 1, j + 1] - tv[i + 1, j])
+            dd = 0.5 * (tv[i + 1, j] - tv[i, j] + tv[i + 1, j + 1] - tv[i, j + 1])
+            # largest singular value of [[a, b], [cc, dd]]
+            s1 = a * a + b * b + cc * cc + dd * dd
+            det = a * dd - b * cc
+            out_scale[i, j] = math.sqrt(0.5 * (s1 + math.sqrt(max(s1 * s1 - 4 * det * det, 0.0))))
+            out_J[i, j, 0], out_J[i, j, 1], out_J[i, j, 2], out_J[i, j, 3] = a, b, cc, dd
+    return out_rho, out_scale, out_J
+
+
+def _node_table(rule: np.ndarray, A_mm: float, n: np.ndarray, d: float, M: np.ndarray) -> np.ndarray:
+    """Per node of a rule, what does not depend on the pixel, as rows (structure of arrays, (9, N)): its four
+    corner weights, ``n . a``, the texel map's ``M a``, ``d - n . a`` (a: the node's aperture point, mm) and its
+    weight."""
+    px, py = rule[:, 0], rule[:, 1]
+    ax, ay = A_mm * rule[:, 2], A_mm * rule[:, 3]
+    na = n[0] * ax + n[1] * ay
+    return np.ascontiguousarray(np.vstack([(1 - px) * (1 - py), px * (1 - py), (1 - px) * py, px * py, na,
+                                           M[0, 0] * ax + M[0, 1] * ay, M[1, 0] * ax + M[1, 1] * ay, d - na,
+                                           rule[:, 4]]))
+
+
+@numba.njit(cache=True, parallel=True, fastmath=True)
+def _integrate_pixels(rows, cols, bins, starts, nodes, xy, cx, cy, fx, fy, e1z, e2z, v_mm, F_mm, n, M, m,
+                      texture, out):
+    """Each listed pixel's mean texture over its square and the aperture (bin ``bins[i]``'s nodes, as
+    :func:`_node_table`): the ray from aperture point a towards the pixel point's conjugate F meets the plane
+    ``n . X = d`` at ``a + lam (F - a)``, ``lam = (d - n . a) / (n . F - n . a)``; n . F and the texel map of F are
+    linear in F, so they are taken at the pixel's corners once and blended per node."""
+    trows, tcols = texture.shape
+    W0, W1, W2, W3 = nodes[0], nodes[1], nodes[2], nodes[3]
+    NA, UA, VA, DN, WT = nodes[4], nodes[5], nodes[6], nodes[7], nodes[8]
+    for i in numba.prange(len(rows)):
+        r, c = rows[i], cols[i]
+        X, Y, Z = _focus_point(xy, r, c, cx, cy, fx, fy, e1z, e2z, v_mm, F_mm)
+        n0 = n[0] * X + n[1] * Y + n[2] * Z
+        u0 = M[0, 0] * X + M[0, 1] * Y + M[0, 2] * Z + m[0]
+        v0 = M[1, 0] * X + M[1, 1] * Y + M[1, 2] * Z + m[1]
+        X, Y, Z = _focus_point(xy, r, c + 1, cx, cy, fx, fy, e1z, e2z, v_mm, F_mm)
+        n1 = n[0] * X + n[1] * Y + n[2] * Z
+        u1 = M[0, 0] * X + M[0, 1] * Y + M[0, 2] * Z + m[0]
+        v1 = M[1, 0] * X + M[1, 1] * Y + M[1, 2] * Z + m[1]
+        X, Y, Z = _focus_point(xy, r + 1, c, cx, cy, fx, fy, e1z, e2z, v_mm, F_mm)
+        n2 = n[0] * X + n[1] * Y + n[2] * Z
+        u2 = M[0, 0] * X + M[0, 1] * Y + M[0, 2] * Z + m[0]
+        v2 = M[1, 0] * X + M[1, 1] * Y + M[1, 2] * Z + m[1]
+        X, Y, Z = _focus_point(xy, r + 1, c + 1, cx, cy, fx, fy, e1z, e2z, v_mm, F_mm)
+        n3 = n[0] * X + n[1] * Y + n[2] * Z
+        u3 = M[0, 0] * X + M[0, 1] * Y + M[0, 2] * Z + m[0]
+        v3 = M[1, 0] * X + M[1, 1] * Y + M[1, 2] * Z + m[1]
+        # with the offset m in the corners' texel values: u = (1 - lam) (M a + m) + lam (M F + m)
+        acc = 0.0
+        k = bins[i]
+        for j in range(starts[k], starts[k + 1]):
+            w0, w1, w2, w3 = W0[j], W1[j], W2[j], W3[j]
+            lam = DN[j] / (w0 * n0 + w1 * n1 + w2 * n2 + w3 * n3 - NA[j])
+            ua = UA[j] + m[0]
+            va = VA[j] + m[1]
+            u = ua + lam * (w0 * u0 + w1 * u1 + w2 * u2 + w3 * u3 - ua)
+            v = va + lam * (w0 * v0 + w1 * v1 + w2 * v2 + w3 * v3 - va)
+            acc += WT[j] * _bilinear(texture, trows, tcols, u, v)
+        out[i] = acc
+
+
+def _face_groups(V_cam: np.ndarray, faces: np.ndarray, candidates: np.ndarray) -> list[np.ndarray]:
+    """Indices of ``candidates`` faces grouped by plane (unit normal to 1e-9, offset to 1e-6 mm), largest
+    area first."""
+    idx = np.flatnonzero(candidates)
+    if idx.size == 0:
+        return []
+    P = V_cam[faces[idx]]
+    nrm = np.cross(P[:, 1] - P[:, 0], P[:, 2] - P[:, 0])
+    area = 0.5 * np.linalg.norm(nrm, axis=1)
+    ok = area > 0
+    idx, P, nrm, area = idx[ok], P[ok], nrm[ok], area[ok]
+    unit = nrm / (2 * area[:, None])
+    offset = np.einsum("ij,ij->i", unit, P[:, 0])
+    key = np.column_stack([np.round(unit / 1e-9), np.round(offset / 1e-6)])
+    _, label = np.unique(key, axis=0, return_inverse=True)
+    label = label.reshape(-1)
+    totals = np.bincount(label, weights=area)
+    order = np.argsort(-totals)
+    return [idx[label == g] for g in order[:MAX_GROUPS]]
+
+
+def _affine_texel_map(surface: TexturedSurface, V_cam: np.ndarray, faces: np.ndarray):
+    """Plane (unit normal n, offset d: n . X = d) and affine map texel = M X + m of a flat face group (camera
+    frame), or None when its texture coordinates are not one affine map of the plane."""
+    tri = faces[0]
+    p0 = V_cam[tri[0]]
+    e1 = V_cam[tri[1]] - p0
+    e2 = V_cam[tri[2]] - p0
+    n = np.cross(e1, e2)
+    n /= np.linalg.norm(n)
+    b1 = e1 / np.linalg.norm(e1)
+    b2 = np.cross(n, b1)
+    verts = np.unique(faces.ravel())
+    rows, cols = np.asarray(surface.texture).shape
+    texel = np.asarray(surface.uv, dtype=float)[verts] * np.array([cols, rows]) - 0.5
+    Q = V_cam[verts] - p0
+    design = np.column_stack([Q @ b1, Q @ b2, np.ones(len(verts))])
+    coef, *_ = np.linalg.lstsq(design, texel, rcond=None)
+    if np.abs(design @ coef - texel).max() > 1e-6 * max(rows, cols, 1):
+        return None
+    # texel = coef[0] (X - p0) . b1 + coef[1] (X - p0) . b2 + coef[2]
+    M = np.outer(coef[0], b1) + np.outer(coef[1], b2)
+    m = coef[2] - M @ p0
+    return n, float(n @ p0), M, m
+
+
+def fill_defocused_faces(spec: SensorSpec, R_cam_from_world: np.ndarray, t_cam_from_world_mm: np.ndarray,
+                         surfaces: list[TexturedSurface], image_grey: np.ndarray, known: np.ndarray, *,
+                         exposure_grey: float = 255.0, tolerance_grey: float = DEFAULT_TOLERANCE_GREY
+                         ) -> tuple[np.ndarray, np.ndarray, dict]:
+    """Make the unknown pixels of a thin-lens view that flat faces fill wholly (module notes).
+
+    Parameters
+    ----------
+    spec : SensorSpec with ``lens == "thin"`` (a pinhole view is returned unchanged)
+    R_cam_from_world, t_cam_from_world_mm : the camera pose, ``X_cam = R X_world + t``
+    surfaces : the scene (as :func:`scenes.exact_render.render_view_in_focus` takes it)
+    image_grey : (height, width) float, the known pixels' grey levels
+    known : (height, width) bool, pixels already made (left as they are)
+    exposure_grey : grey levels per unit radiance
+    tolerance_grey : largest RMS error of a blur bin's rule against the dense rule
+
+    Returns
+    -------
+    image_grey : (height, width) float32, with the pixels made here
+    known : (height, width) bool, ``known`` or made here
+    info : ``defocus_pixels`` (made here), ``defocus_nodes`` (their mean rule size), ``defocus_bins`` (per blur
+        bin: upper blur radius px, rule (n_p, n_r, n_t), nodes, measured error grey, pixels), ``defocus_groups``
+        (flat face groups used) and ``defocus_skipped`` (why a group was not used)
+    """
+    image = np.array(image_grey, dtype=np.float32, copy=True)
+    known = np.array(known, dtype=bool, copy=True)
+    info = {"defocus_pixels": 0, "defocus_nodes": 0.0, "defocus_bins": [], "defocus_groups": 0,
+            "defocus_skipped": []}
+    if spec.lens != "thin" or known.all() or not surfaces:
+        return image, known, info
+    from scipy.ndimage import distance_transform_edt, maximum_filter
+
+    from scenes.truth import defocus_blur_px, tilted_sensor_axes
+
+    R = np.asarray(R_cam_from_world, dtype=float)
+    t = np.asarray(t_cam_from_world_mm, dtype=float).reshape(3)
+    centre = -R.T @ t
+    A_mm = 0.5 * spec.focal_length_mm / spec.f_number
+    cull = closed_surface(surfaces)
+    H, W = spec.height, spec.width
+    seen, groups = [], []
+    for si, surface in enumerate(surfaces):
+        faces = np.asarray(surface.faces, dtype=int)
+        dist = facing_distance_mm(surface, centre)
+        seen.append(dist > -A_mm if cull else np.ones(len(faces), dtype=bool))
+        if surface.filter != "bilinear":
+            continue
+        V_cam = np.asarray(surface.vertices_mm, dtype=float) @ R.T + t
+        # a face seen from its emitting side by the whole aperture
+        for g in _face_groups(V_cam, faces, dist > A_mm):
+            groups.append((si, g, V_cam))
+    xy = sensor_corner_coordinates(spec)
+    axes = tilted_sensor_axes(spec.alpha_deg, spec.beta_deg)
+    optics = (spec.cx, spec.cy, spec.fx, spec.fy, axes[2, 0], axes[2, 1], spec.image_distance_mm,
+              spec.focal_length_mm)
+    total_nodes = 0.0
+    for si, g, V_cam in groups:
+        surface = surfaces[si]
+        faces = np.asarray(surface.faces, dtype=int)
+        plane = _affine_texel_map(surface, V_cam, faces[g])
+        if plane is None:
+            info["defocus_skipped"].append(f"surface {si}: its flat faces' texture is not one affine map")
+            continue
+        n, d, M, m = plane
+        try:
+            Vw = np.asarray(surface.vertices_mm, dtype=float)
+            xy_g, st_g = project_outlines(spec, R, t, list(Vw[faces[g]]), 1e-3)
+        except NotExactError as err:
+            info["defocus_skipped"].append(f"surface {si}: {err}")
+            continue
+        # whole coverage on the sensor widened by the group's largest blur (its edges beyond the sensor count),
+        # a ring of "not covered" around that window: the distance to the group's edge, px
+        blur_g = defocus_blur_px(spec, R, t, Vw[np.unique(faces[g])])
+        pad = int(min(np.nanmax(blur_g) if np.isfinite(blur_g).any() else 0.0, MAX_REACH_PX) * BLUR_MARGIN / 2
+                  + EDGE_MARGIN_PX + 2)
+        wide = accumulate_flat(xy_g, st_g, np.ones(len(g)), (H + 2 * pad, W + 2 * pad), (-pad, -pad))
+        wide = np.pad(wide >= 1.0 - 1e-6, 1, constant_values=False)
+        edge_all = distance_transform_edt(wide)[pad + 1:pad + 1 + H, pad + 1:pad + 1 + W]
+        whole = edge_all > 0
+        # everything else that is seen: the other faces, dilated by their own blur
+        near_other = np.zeros((H, W), dtype=bool)
+        other_polys, other_blur = [], 0.0
+        for k, (s, mask) in enumerate(zip(surfaces, seen)):
+            mask = mask.copy()
+            if k == si:
+                mask[g] = False
+            if not mask.any():
+                continue
+            Vk = np.asarray(s.vertices_mm, dtype=float)
+            fk = np.asarray(s.faces, dtype=int)[mask]
+            other_polys += list(Vk[fk])
+            blur = defocus_blur_px(spec, R, t, Vk)[fk].max(axis=1)
+            if not np.all(np.isfinite(blur)):
+                other_blur = np.inf
+                break
+            other_blur = max(other_blur, float(blur.max()))
+        if not np.isfinite(other_blur):
+            info["defocus_skipped"].append(f"surface {si}: another face reaches behind the lens")
+            continue
+        if other_polys:
+            try:
+                xy_o, st_o = project_outlines(spec, R, t, other_polys, 0.05)
+            except NotExactError as err:
+                info["defocus_skipped"].append(f"surface {si}: {err}")
+                continue
+            foot = np.abs(accumulate_flat(xy_o, st_o, np.ones(len(other_polys)), (H, W))) > 0
+            reach = int(math.ceil(0.5 * other_blur * BLUR_MARGIN + EDGE_MARGIN_PX))
+            near_other = maximum_filter(foot, size=2 * reach + 1)
+        todo = whole & ~known & ~near_other
+        if not todo.any():
+            continue
+        r_idx, c_idx = np.nonzero(todo)
+        r0, r1, c0, c1 = int(r_idx.min()), int(r_idx.max()) + 1, int(c_idx.min()), int(c_idx.max()) + 1
+        rho, scale, jac = _blur_and_scale(xy, r0, r1, c0, c1, *optics, A_mm, n, d, M, m)
+        edge = edge_all[r0:r1, c0:c1]
+        ok = (todo[r0:r1, c0:c1] & (edge > BLUR_MARGIN * rho + EDGE_MARGIN_PX) & np.isfinite(rho)
+              & np.isfinite(scale))
+        if not ok.any():
+            continue
+        rr, cc = np.nonzero(ok)
+        rho_ok = rho[rr, cc]
+        scale_ok = scale[rr, cc]
+        edges = [FIRST_BIN_PX]
+        while edges[-1] < rho_ok.max():
+            edges.append(edges[-1] * BIN_GROWTH)
+        bins = np.searchsorted(np.array(edges), rho_ok)
+        rules, starts = [], [0]
+        tex = np.ascontiguousarray(surface.texture, dtype=np.float32)      # as Mitsuba holds it
+        detail_texels = texture_detail_texels(tex)
+        fingerprint = texture_fingerprint(tex)
+        previous = 0
+        for b, edge_px in enumerate(edges):
+            members = np.flatnonzero(bins == b)
+            count = int(members.size)
+            if count == 0:
+                rules.append(np.zeros((0, 5)))
+                starts.append(starts[-1])
+                continue
+            # the bin's rule is measured where its texture is finest on the sensor
+            worst = members[np.argmax(scale_ok[members])]
+            J = jac[rr[worst], cc[worst]].astype(np.float64).reshape(2, 2)
+            choice = choose_rule(tex, J, edge_px, exposure_grey, tolerance_grey, seed=b,
+                                 detail_texels=detail_texels, fingerprint=fingerprint, at_least=previous)
+            previous = choice["nodes"]
+            rule = thin_lens_rule(*choice["rule"])
+            rules.append(rule)
+            starts.append(starts[-1] + len(rule))
+            info["defocus_bins"].append({"rho_px": edge_px, "rule": list(choice["rule"]), "nodes": choice["nodes"],
+                                         "error_grey": choice["error_grey"], "pixels": count})
+            total_nodes += count * choice["nodes"]
+        out = np.empty(len(rr))
+        _integrate_pixels((rr + r0).astype(np.int64), (cc + c0).astype(np.int64), bins.astype(np.int64),
+                          np.array(starts, dtype=np.int64), _node_table(np.concatenate(rules), A_mm, n, d, M), xy,
+                          *optics, n, M, m, tex, out)
+        image[rr + r0, cc + c0] = (float(exposure_grey) * out).astype(np.float32)
+        known[rr + r0, cc + c0] = True
+        info["defocus_pixels"] += int(len(rr))
+        info["defocus_groups"] += 1
+    if info["defocus_pixels"]:
+        info["defocus_nodes"] = total_nodes / info["defocus_pixels"]
+    return image, known, info
+
+
+__all__ = ["DEFAULT_TOLERANCE_GREY", "RENDERER_DEFOCUS", "RENDERER_THIN_LENS", "RENDERER_THIN_LENS_ADAPTIVE", "choose_rule", "fill_defocused_faces", "rule_size",
+           "texture_detail_texels", "texture_fingerprint", "thin_lens_rule"]

@@ -1,0 +1,138 @@
+"""Thin-lens defocus without Monte Carlo (scenes.defocus_quadrature) against converged Mitsuba thin-lens renders.
+
+The scene is the depth-of-field experiment's at 0.2 scale: a speckled plate at 38° seen by an untilted sensor
+through a thin lens at f/4, in focus on one column and blurred up to a ~3.5 px circle at the sides. The
+reference is two independent 1024-spp Mitsuba renders; the renderer's systematic error is estimated without
+their noise as ``sqrt(mean((q - a)(q - b)))`` (a, b: the two halves, whose noises are independent).
+"""
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from scenes.defocus_quadrature import (choose_rule, fill_defocused_faces, rule_size, texture_detail_texels,
+                                       thin_lens_rule)
+from scenes.exact_render import render_view_in_focus
+from scenes.render import render_view
+
+#: The issue's bound on a deterministic render's error against converged Mitsuba, grey RMS.
+RENDER_ERROR_GREY = 0.1
+
+
+@pytest.fixture(scope="module")
+def plate_views():
+    from workbench.experiments.depth_of_field.run import depth_of_field_scene
+
+    scene = depth_of_field_scene(scale=0.2, object_tilt_deg=38.0, seed=0)
+    surface = scene.plate.surface(scene.R_world_from_plate, scene.t_world_from_plate_mm, scene.plate.texture())
+    spec = scene.specs["conventional"]
+    pose = (np.eye(3), np.zeros(3))
+    halves = [render_view(spec, *pose, [surface], spp=1024, seed=s, exposure_grey=255.0).image_grey
+              for s in (21, 22)]
+    return scene, surface, spec, pose, halves
+
+
+def _systematic_grey(image, halves, mask):
+    a, b = (h[mask].astype(np.float64) for h in halves)
+    q = image[mask].astype(np.float64)
+    cross = float(np.mean((q - a) * (q - b)))
+    return float(np.sign(cross) * np.sqrt(abs(cross)))
+
+
+def test_a_defocused_plate_equals_converged_mitsuba_within_0p1_grey(plate_views):
+    """Every pixel of the blurred plate is made (the plate fills the view), and the image's systematic error
+    against two 1024-spp Mitsuba thin-lens renders is <= 0.1 grey RMS, over the whole image and over its most
+    blurred tenth (blur circle >= 3 px), with no mean offset beyond 4 standard errors of the reference."""
+    scene, surface, spec, pose, halves = plate_views
+    image, known, info = render_view_in_focus(spec, *pose, [surface], exposure_grey=255.0)
+    assert not known.any()                      # nothing is in focus enough for the in-focus renderer
+    image, known, info = fill_defocused_faces(spec, *pose, [surface], image, known, exposure_grey=255.0)
+    assert known.all() and info["defocus_pixels"] == known.size and info["defocus_groups"] == 1
+    assert max(b["error_grey"] for b in info["defocus_bins"]) <= 0.03 + 1e-12
+    everything = np.ones(image.shape, dtype=bool)
+    assert _systematic_grey(image, halves, everything) <= RENDER_ERROR_GREY
+    from scenes.truth import defocus_blur_px, pixel_rays
+
+    cols = np.arange(image.shape[1])
+    rays = pixel_rays(spec, *pose, np.column_stack([cols, np.full(cols.size, image.shape[0] // 2)]))
+    normal = scene.R_world_from_plate[:, 2]
+    lam = (normal @ scene.t_world_from_plate_mm) / (rays[1] @ normal)
+    blur = defocus_blur_px(spec, *pose, rays[1] * lam[:, None])
+    blurred = np.zeros(image.shape, dtype=bool)
+    blurred[:, blur >= 3.0] = True
+    assert blurred.sum() > 0.05 * blurred.size
+    assert _systematic_grey(image, halves, blurred) <= RENDER_ERROR_GREY
+    noise = 0.5 * (halves[0] - halves[1])
+    diff = image - 0.5 * (halves[0] + halves[1])
+    assert abs(diff.mean()) < 4 * np.sqrt(np.mean(noise ** 2)) / np.sqrt(diff.size) + 1e-3
+
+
+def test_a_wrong_blur_radius_misses_mitsuba_by_more_than_the_bound(plate_views):
+    """The comparison can fail: the same quadrature with the aperture 10 % too small (f/4.4 for f/4: every blur
+    circle 9 % too small) misses the converged render by more than 0.1 grey RMS."""
+    scene, surface, spec, pose, halves = plate_views
+    wrong = replace(spec, f_number=spec.f_number * 1.1)
+    image, known, _ = render_view_in_focus(wrong, *pose, [surface], exposure_grey=255.0)
+    image, known, _ = fill_defocused_faces(wrong, *pose, [surface], image, known, exposure_grey=255.0)
+    assert known.all()
+    assert _systematic_grey(image, halves, np.ones(image.shape, dtype=bool)) > RENDER_ERROR_GREY
+
+
+def test_pixels_whose_blur_reaches_past_the_face_are_left_for_mitsuba(plate_views):
+    """A plate smaller than the view: pixels whose blur circle (+ margin) reaches its edge stay unknown and 0,
+    pixels off the plate too; the ones made inside equal Mitsuba within 0.1 grey."""
+    from scenes.specimens import SpeckledPlate
+
+    scene, _, spec, pose, _ = plate_views
+    p = scene.plate
+    small = SpeckledPlate(width_mm=0.5 * p.width_mm, height_mm=0.5 * p.height_mm, texel_mm=p.texel_mm,
+                          speckle_mm=p.speckle_mm, seed=3)
+    surface = small.surface(scene.R_world_from_plate, scene.t_world_from_plate_mm)
+    image, known, _ = render_view_in_focus(spec, *pose, [surface], exposure_grey=255.0)
+    image, known, info = fill_defocused_faces(spec, *pose, [surface], image, known, exposure_grey=255.0)
+    assert 0.1 * known.size < info["defocus_pixels"] < 0.5 * known.size and not known.all()
+    assert np.all(image[~known] == 0)
+    halves = [render_view(spec, *pose, [surface], spp=256, seed=s, exposure_grey=255.0).image_grey for s in (1, 2)]
+    lit = 0.5 * (halves[0] + halves[1]) > 0
+    edge = lit & ~known
+    assert edge.sum() > 0                        # the blurred silhouette is Mitsuba's
+    assert np.all(image[known & ~lit] == 0)       # off the plate and out of its blur's reach: black
+    assert _systematic_grey(image, halves, known) <= RENDER_ERROR_GREY
+
+
+def test_rules_integrate_constants_and_the_chosen_rule_meets_its_tolerance_against_a_much_denser_one():
+    """Every rule's weights sum to 1 (a constant texture is exact); the rule ``choose_rule`` picks for a 4 px
+    blur of a 5 px speckle errs by at most 1.5x the tolerance against an independent rule with ~10x the nodes
+    of its own dense rule (the selection measures against the dense rule, this checks that rule too)."""
+    from scenes.defocus_quadrature import _model_values
+    from scenes.speckle import speckle_pattern
+
+    for sizes in [(2, 1, 1), (3, 4, 7), (6, 2, 5)]:
+        rule = thin_lens_rule(*sizes)
+        assert rule.shape == (rule_size(*sizes), 5) and abs(rule[:, 4].sum() - 1.0) < 1e-12
+        assert np.all(np.hypot(rule[:, 2], rule[:, 3]) <= 1.0 + 1e-12)
+    texture = speckle_pattern((1200, 1200), 12.5, contrast=0.8, mean=0.5, seed=4).astype(np.float32)
+    J = np.array([[2.5, 0.3], [-0.2, 2.1]])
+    choice = choose_rule(texture, J, 4.0, 255.0, tolerance_grey=0.03, seed=0)
+    assert choice["nodes"] < rule_size(*choice["dense"]) and choice["error_grey"] <= 0.03
+    rng = np.random.default_rng(9)
+    centres = rng.uniform(150, 1050, (200, 2))
+    fine = _model_values(texture, centres, J, 4.0, np.ascontiguousarray(thin_lens_rule(8, 30, 160)))
+    got = _model_values(texture, centres, J, 4.0, np.ascontiguousarray(thin_lens_rule(*choice["rule"])))
+    assert 255.0 * np.sqrt(np.mean((got - fine) ** 2)) <= 1.5 * 0.03
+    # the detail length of a 5 px (12.5 texel) speckle is ~0.3 of its diameter
+    assert 0.25 * 12.5 < texture_detail_texels(texture) < 0.4 * 12.5
+
+
+def test_a_pinhole_or_a_known_view_is_returned_unchanged(plate_views):
+    """Nothing to do: a pinhole view, or every pixel already known, comes back as given."""
+    scene, surface, spec, pose, _ = plate_views
+    image = np.full((spec.height, spec.width), 7.0, dtype=np.float32)
+    known = np.ones(image.shape, dtype=bool)
+    out, k, info = fill_defocused_faces(spec, *pose, [surface], image, known)
+    assert info["defocus_pixels"] == 0 and np.array_equal(out, image) and k.all()
+    pin = replace(spec, lens="pinhole")
+    out, k, info = fill_defocused_faces(pin, *pose, [surface], image, ~known)
+    assert info["defocus_pixels"] == 0 and not k.any()
