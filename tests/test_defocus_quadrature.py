@@ -12,7 +12,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from scenes.defocus_quadrature import (choose_rule, fill_defocused_faces, rule_size, texture_detail_texels,
+from scenes.defocus_quadrature import (DEFAULT_TOLERANCE_GREY, choose_rule, fill_defocused_faces, rule_size, texture_detail_texels,
                                        thin_lens_rule)
 from scenes.exact_render import render_view_in_focus
 from scenes.render import render_view
@@ -50,7 +50,7 @@ def test_a_defocused_plate_equals_converged_mitsuba_within_0p1_grey(plate_views)
     assert not known.any()                      # nothing is in focus enough for the in-focus renderer
     image, known, info = fill_defocused_faces(spec, *pose, [surface], image, known, exposure_grey=255.0)
     assert known.all() and info["defocus_pixels"] == known.size and info["defocus_groups"] == 1
-    assert max(b["error_grey"] for b in info["defocus_bins"]) <= 0.03 + 1e-12
+    assert max(b["error_grey"] for b in info["defocus_bins"]) <= DEFAULT_TOLERANCE_GREY + 1e-12
     everything = np.ones(image.shape, dtype=bool)
     assert _systematic_grey(image, halves, everything) <= RENDER_ERROR_GREY
     from scenes.truth import defocus_blur_px, pixel_rays
@@ -136,3 +136,81 @@ def test_a_pinhole_or_a_known_view_is_returned_unchanged(plate_views):
     pin = replace(spec, lens="pinhole")
     out, k, info = fill_defocused_faces(pin, *pose, [surface], image, ~known)
     assert info["defocus_pixels"] == 0 and not k.any()
+
+
+def _reference_pixels(spec, surface, rows, cols, rule, exposure_grey):
+    """The rule, evaluated the textbook way in float64 (numpy): per node, the ray from the aperture point
+    through the sub-pixel's focus point (scenes.truth), its hit on the mesh's triangles, the hit's
+    barycentric texture coordinates, Mitsuba's bilinear lookup with clamping. Camera at the world origin."""
+    from scenes.truth import in_focus_points_world_mm
+
+    A_mm = 0.5 * spec.focal_length_mm / spec.f_number
+    tex = np.asarray(surface.texture, dtype=np.float64)
+    th, tw = tex.shape
+    V = np.asarray(surface.vertices_mm, dtype=float)
+    F_idx = np.asarray(surface.faces, dtype=int)
+    uv = np.asarray(surface.uv, dtype=float)
+    n_pix, n_nodes = len(rows), len(rule)
+    pos = np.column_stack([(cols[:, None] - 0.5 + rule[None, :, 0]).ravel(),
+                           (rows[:, None] - 0.5 + rule[None, :, 1]).ravel()])
+    F = in_focus_points_world_mm(spec, np.eye(3), np.zeros(3), pos)
+    a = np.zeros_like(F)
+    a[:, 0] = np.tile(A_mm * rule[:, 2], n_pix)
+    a[:, 1] = np.tile(A_mm * rule[:, 3], n_pix)
+    d = F - a
+    tu = np.full(len(F), np.nan)
+    tv = np.full(len(F), np.nan)
+    for tri in F_idx:                                        # Moller-Trumbore on each triangle
+        p0, p1, p2 = V[tri]
+        e1, e2 = p1 - p0, p2 - p0
+        h = np.cross(d, e2)
+        det = h @ e1
+        s = a - p0
+        b1 = np.einsum("ij,ij->i", s, h) / det
+        q = np.cross(s, e1)
+        b2 = np.einsum("ij,ij->i", d, q) / det
+        inside = (b1 >= 0) & (b2 >= 0) & (b1 + b2 <= 1)
+        w = np.column_stack([1 - b1 - b2, b1, b2])[inside]
+        t_uv = w @ uv[tri]
+        tu[inside] = t_uv[:, 0] * tw - 0.5
+        tv[inside] = t_uv[:, 1] * th - 0.5
+    assert np.isfinite(tu).all(), "every node's ray must meet the plate"
+    x = np.clip(tu, 0, tw - 1)
+    y = np.clip(tv, 0, th - 1)
+    i0 = np.minimum(x.astype(int), tw - 2)
+    j0 = np.minimum(y.astype(int), th - 2)
+    fx, fy = x - i0, y - j0
+    top = tex[j0, i0] * (1 - fx) + tex[j0, i0 + 1] * fx
+    bottom = tex[j0 + 1, i0] * (1 - fx) + tex[j0 + 1, i0 + 1] * fx
+    values = (top * (1 - fy) + bottom * fy).reshape(n_pix, n_nodes)
+    return exposure_grey * values @ rule[:, 4]
+
+
+def test_the_float32_kernel_equals_a_float64_ray_tracing_of_the_same_rule_within_0p002_grey(plate_views):
+    """Precision and geometry of the kernel: on 300 pixels across the blur range, one rule (4 pixel nodes x
+    3 rings) evaluated by the float32 kernel and by a float64 numpy ray tracing of the same nodes against the
+    plate's triangles differ by at most 0.002 grey. A float32 evaluation at absolute texel positions (~10^-3
+    texel at 10^4 texels), a wrong plane, texel map or focus point would fail it."""
+    from scenes.defocus_quadrature import _affine_texel_map, _integrate_pixels, _node_table
+    from scenes.exact_render import sensor_corner_coordinates
+    from scenes.truth import tilted_sensor_axes
+
+    scene, surface, spec, pose, _ = plate_views
+    rng = np.random.default_rng(5)
+    rows = rng.integers(20, spec.height - 20, 300)
+    cols = rng.integers(20, spec.width - 20, 300)
+    rule = np.ascontiguousarray(thin_lens_rule(2, 3, 9))
+    faces = np.asarray(surface.faces, dtype=int)
+    V = np.asarray(surface.vertices_mm, dtype=float)          # camera = world frame here
+    n, d, M, m = _affine_texel_map(surface, V, faces)
+    A_mm = 0.5 * spec.focal_length_mm / spec.f_number
+    axes = tilted_sensor_axes(spec.alpha_deg, spec.beta_deg)
+    out = np.empty(len(rows))
+    _integrate_pixels(rows.astype(np.int64), cols.astype(np.int64), np.zeros(len(rows), dtype=np.int64),
+                      np.array([0, len(rule)], dtype=np.int64), _node_table(rule, A_mm, n, M),
+                      sensor_corner_coordinates(spec), spec.cx, spec.cy, spec.fx, spec.fy, axes[2, 0], axes[2, 1],
+                      spec.image_distance_mm, spec.focal_length_mm, n, d, M, m, 200,
+                      np.ascontiguousarray(surface.texture, dtype=np.float32), out)
+    ref = _reference_pixels(spec, surface, rows, cols, rule, 255.0)
+    assert np.abs(255.0 * out - ref).max() <= 0.002
+    assert np.ptp(ref) > 50                                    # the pixels see the speckle, not a flat grey

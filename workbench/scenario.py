@@ -294,7 +294,7 @@ class Instrument:
 BOARD_RENDERER_TAGS = {"auto": "exact-polygon/1 else mitsuba", "mitsuba": "mitsuba"}
 #: The same for the speckle states (the quadrature order is part of the renderer's version).
 SPECKLE_RENDERER_TAGS = {
-    "auto": "polygon-quadrature/2 order 6, thin lens in focus <= 0.1 px + flat blurred faces defocus-quadrature/1 "
+    "auto": "polygon-quadrature/2 order 6, thin lens in focus <= 0.1 px + flat blurred faces defocus-quadrature/2 "
             "+ mitsuba-adaptive, else mitsuba",
     "mitsuba": "mitsuba"}
 
