@@ -65,6 +65,8 @@ FIRST_BIN_PX = 0.05
 MAX_REACH_PX = 200.0
 #: Flat face groups tried per surface (the largest by area); a curved mesh's triangles are left to Mitsuba.
 MAX_GROUPS = 8
+#: Flat face groups whose pinhole image is smaller than this are not tried, px^2 (a 20 px square).
+MIN_GROUP_AREA_PX = 400.0
 #: Side of the pixel tiles integrated in turn, px.
 TILE_PX = 32
 #: Texture points and dense-rule density (nodes per texture detail length) of a bin's calibration.
@@ -503,7 +505,7 @@ def fill_defocused_faces(spec: SensorSpec, R_cam_from_world: np.ndarray, t_cam_f
         return image, known, info
     from scipy.ndimage import distance_transform_edt, maximum_filter
 
-    from scenes.truth import defocus_blur_px, tilted_sensor_axes
+    from scenes.truth import defocus_blur_px, project_points, tilted_sensor_axes
 
     R = np.asarray(R_cam_from_world, dtype=float)
     t = np.asarray(t_cam_from_world_mm, dtype=float).reshape(3)
@@ -527,9 +529,18 @@ def fill_defocused_faces(spec: SensorSpec, R_cam_from_world: np.ndarray, t_cam_f
     optics = (spec.cx, spec.cy, spec.fx, spec.fy, axes[2, 0], axes[2, 1], spec.image_distance_mm,
               spec.focal_length_mm)
     total_nodes = 0.0
+    small = 0
     for si, g, V_cam in groups:
         surface = surfaces[si]
         faces = np.asarray(surface.faces, dtype=int)
+        # a deformed mesh's "flat groups" are single triangles a few px wide: none holds a blur circle, and each
+        # would cost whole-view coverage and distance passes
+        P = project_points(spec, R, t, np.asarray(surface.vertices_mm, dtype=float)[faces[g]].reshape(-1, 3))
+        P = P.reshape(-1, 3, 2)
+        e1, e2 = P[:, 1] - P[:, 0], P[:, 2] - P[:, 0]
+        if 0.5 * np.nansum(np.abs(e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0])) < MIN_GROUP_AREA_PX:
+            small += 1
+            continue
         plane = _affine_texel_map(surface, V_cam, faces[g])
         if plane is None:
             info["defocus_skipped"].append(f"surface {si}: its flat faces' texture is not one affine map")
@@ -632,6 +643,8 @@ def fill_defocused_faces(spec: SensorSpec, R_cam_from_world: np.ndarray, t_cam_f
         known[rr + r0, cc + c0] = True
         info["defocus_pixels"] += int(len(rr))
         info["defocus_groups"] += 1
+    if small:
+        info["defocus_skipped"].append(f"{small} flat face group(s) under {MIN_GROUP_AREA_PX:g} px^2 in the view")
     if info["defocus_pixels"]:
         info["defocus_nodes"] = total_nodes / info["defocus_pixels"]
     return image, known, info
