@@ -326,25 +326,11 @@ def _node_table(rule: np.ndarray, A_mm: float, n: np.ndarray, M: np.ndarray) -> 
 
 
 @numba.njit(cache=True, inline="always")
-def _pixel_corners(xy, r, c, cx, cy, fx, fy, e1z, e2z, v_mm, F_mm, n, d, M, m, margin):
-    """Per corner q of pixel (r, c) (float64): n . F_q, d - n . F_q, the texel map's linear part M F_q, and the
-    whole texel position M F_q + m less the integer texel ``(iu, iv)``, ``margin`` texels before the texel of
-    corner 0's chief ray on the plane."""
-    nF = np.empty(4)
-    dF = np.empty(4)
-    U = np.empty(4)
-    V = np.empty(4)
-    for q in range(4):
-        X, Y, Z = _focus_point(xy, r + q // 2, c + q % 2, cx, cy, fx, fy, e1z, e2z, v_mm, F_mm)
-        nF[q] = n[0] * X + n[1] * Y + n[2] * Z
-        dF[q] = d - nF[q]
-        U[q] = M[0, 0] * X + M[0, 1] * Y + M[0, 2] * Z
-        V[q] = M[1, 0] * X + M[1, 1] * Y + M[1, 2] * Z
-    # the chief ray's hit (a = 0) of corner 0: the pixel's rays land within the blur's reach of it
-    kappa0 = dF[0] / nF[0]
-    iu = math.floor(U[0] * (1.0 + kappa0) + m[0]) - margin
-    iv = math.floor(V[0] * (1.0 + kappa0) + m[1]) - margin
-    return nF, dF, U, V, U + (m[0] - iu), V + (m[1] - iv), iu, iv
+def _corner(xy, r, c, cx, cy, fx, fy, e1z, e2z, v_mm, F_mm, n, M):
+    """n . F, M F (the texel map's linear part) of sensor corner (r, c)'s focus point F (float64 scalars)."""
+    X, Y, Z = _focus_point(xy, r, c, cx, cy, fx, fy, e1z, e2z, v_mm, F_mm)
+    return (n[0] * X + n[1] * Y + n[2] * Z, M[0, 0] * X + M[0, 1] * Y + M[0, 2] * Z,
+            M[1, 0] * X + M[1, 1] * Y + M[1, 2] * Z)
 
 
 @numba.njit(cache=True, parallel=True, fastmath=True)
@@ -363,16 +349,22 @@ def _integrate_pixels(rows, cols, bins, starts, nodes, xy, cx, cy, fx, fy, e1z, 
     W0, W1, W2, W3 = nodes[0], nodes[1], nodes[2], nodes[3]
     NA, UA, VA, WT = nodes[4], nodes[5], nodes[6], nodes[7]
     for i in numba.prange(len(rows)):
-        nF, dF, U, V, u_rel, v_rel, iu, iv = _pixel_corners(xy, rows[i], cols[i], cx, cy, fx, fy, e1z, e2z,
-                                                            v_mm, F_mm, n, d, M, m, margin)
-        n0, n1, n2, n3 = np.float32(nF[0]), np.float32(nF[1]), np.float32(nF[2]), np.float32(nF[3])
-        d0, d1, d2, d3 = np.float32(dF[0]), np.float32(dF[1]), np.float32(dF[2]), np.float32(dF[3])
-        U0, U1, U2, U3 = np.float32(U[0]), np.float32(U[1]), np.float32(U[2]), np.float32(U[3])
-        V0, V1, V2, V3 = np.float32(V[0]), np.float32(V[1]), np.float32(V[2]), np.float32(V[3])
-        a0, a1, a2, a3 = (np.float32(u_rel[0]), np.float32(u_rel[1]), np.float32(u_rel[2]),
-                          np.float32(u_rel[3]))
-        b0, b1, b2, b3 = (np.float32(v_rel[0]), np.float32(v_rel[1]), np.float32(v_rel[2]),
-                          np.float32(v_rel[3]))
+        r, c = rows[i], cols[i]
+        p0, P0, Q0 = _corner(xy, r, c, cx, cy, fx, fy, e1z, e2z, v_mm, F_mm, n, M)
+        p1, P1, Q1 = _corner(xy, r, c + 1, cx, cy, fx, fy, e1z, e2z, v_mm, F_mm, n, M)
+        p2, P2, Q2 = _corner(xy, r + 1, c, cx, cy, fx, fy, e1z, e2z, v_mm, F_mm, n, M)
+        p3, P3, Q3 = _corner(xy, r + 1, c + 1, cx, cy, fx, fy, e1z, e2z, v_mm, F_mm, n, M)
+        # the integer texel (iu, iv): margin texels before corner 0's chief-ray hit (a = 0) on the plane
+        k0 = (d - p0) / p0
+        iu = math.floor(P0 * (1.0 + k0) + m[0]) - margin
+        iv = math.floor(Q0 * (1.0 + k0) + m[1]) - margin
+        ou, ov = m[0] - iu, m[1] - iv
+        n0, n1, n2, n3 = np.float32(p0), np.float32(p1), np.float32(p2), np.float32(p3)
+        d0, d1, d2, d3 = np.float32(d - p0), np.float32(d - p1), np.float32(d - p2), np.float32(d - p3)
+        U0, U1, U2, U3 = np.float32(P0), np.float32(P1), np.float32(P2), np.float32(P3)
+        V0, V1, V2, V3 = np.float32(Q0), np.float32(Q1), np.float32(Q2), np.float32(Q3)
+        a0, a1, a2, a3 = np.float32(P0 + ou), np.float32(P1 + ou), np.float32(P2 + ou), np.float32(P3 + ou)
+        b0, b1, b2, b3 = np.float32(Q0 + ov), np.float32(Q1 + ov), np.float32(Q2 + ov), np.float32(Q3 + ov)
         # Mitsuba's clamp to the edge texels, in relative coordinates (exact integers in float32)
         xlo, xhi = np.float32(-iu), np.float32(tcols - 1 - iu)
         ylo, yhi = np.float32(-iv), np.float32(trows - 1 - iv)
