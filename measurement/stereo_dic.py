@@ -26,10 +26,10 @@ import cv2
 import numpy as np
 
 from measurement.camera import ScheimpflugCamera
-from measurement.dic import DICResult, DICSettings, PoiGrid, Seed, Status, correlate, poi_grid
-from measurement.dic.correlate import PreparedImage, prepare_image
+from measurement.dic import DICResult, DICSettings, PoiGrid, ReferenceCache, Seed, Status, correlate, poi_grid
+from measurement.dic.correlate import PreparedImage, prepare_image, subset_min_std
 from measurement.dic.guide import band_regions
-from measurement.dic.initial import translation_parameters
+from measurement.dic.initial import translation_parameters, zncc_search
 from measurement.dic.roi import AutoRoi, AutoRoiReport, expand_result, flag_inconsistent, texture_grid
 from measurement.speckle_quality import NoiseModel
 from measurement.stereo import triangulate
@@ -270,12 +270,14 @@ def feature_seeds(matches: FeatureMatches, grid: PoiGrid, regions: int, per_regi
 def correlate_with_features(reference: np.ndarray | PreparedImage, target: np.ndarray, settings: DICSettings,
                             grid: PoiGrid, name: str = "target",
                             reference_features: Features | None = None,
-                            matches: FeatureMatches | None = None) -> DICResult:
+                            matches: FeatureMatches | None = None,
+                            reference_cache: ReferenceCache | None = None) -> DICResult:
     """DIC of ``reference`` -> ``target`` over ``grid``, seeded by feature matches (any disparity/rotation).
 
     ``reference`` may be prepared once (:func:`measurement.dic.correlate.prepare_image`) and its features detected
     once (:func:`detect_features`) for a whole sequence; ``matches`` (from :func:`match_features`) skips the
-    matching.
+    matching; ``reference_cache`` keeps the reference side of IC-GN between matches (see
+    :func:`measurement.dic.correlate`).
     """
     values = reference.values if isinstance(reference, PreparedImage) else reference
     if matches is None:
@@ -285,7 +287,55 @@ def correlate_with_features(reference: np.ndarray | PreparedImage, target: np.nd
     if not seeds:
         raise StereoMatchError(f"no seed could be placed for the {name} image: too few feature matches inside "
                                "the region of interest")
-    return correlate(reference, target, settings, grid=grid, seeds=seeds)
+    return correlate(reference, target, settings, grid=grid, seeds=seeds, reference_cache=reference_cache)
+
+
+#: A warm-started match must converge at least this share of the points the previous state's match converged;
+#: below it the state is matched again from feature seeds (a jump the warm seeds could not follow).
+WARM_START_MIN_SHARE = 0.98
+
+
+def sequence_seeds(reference: np.ndarray, target: np.ndarray, grid: PoiGrid, previous: DICResult,
+                   settings: DICSettings, per_region: int = 2, tries_per_region: int = 6,
+                   min_zncc: float = 0.5) -> list[Seed]:
+    """Seeds for matching ``target`` when the previous image of the sequence was matched (``previous``).
+
+    In each propagation band, at the nodes the previous match converged nearest the band's centre, the subset is
+    searched (ZNCC over +- ``settings.search_radius_px`` around the previous displacement, no rotation), and the
+    seed takes the found translation with the previous match's shape parameters (its strain, rotation, and the
+    other camera's foreshortening). A few template searches replace a feature detection and matching of the whole
+    image. Returns [] when no node of ``grid`` converged in ``previous`` or no search reaches ``min_zncc``.
+    """
+    ok = previous.status == Status.CONVERGED
+    if not ok.any():
+        return []
+    # previous points by position: the grids may differ (an automatic ROI keeps a subset of the nodes)
+    lookup = {(int(x), int(y)): k for k, (x, y) in enumerate(zip(previous.x[ok], previous.y[ok]))}
+    params = previous.parameters[ok]
+    region = band_regions(grid.shape, settings.regions)
+    half = grid.half
+    seeds = []
+    for region_id in range(int(region.max()) + 1):
+        rows, cols = np.nonzero(grid.active & (region == region_id))
+        candidates = [(int(grid.x[r, c]), int(grid.y[r, c])) for r, c in zip(rows, cols)]
+        known = [(x, y) for x, y in candidates if (x, y) in lookup]
+        if not known:
+            continue
+        xy = np.array(known, dtype=np.float64)
+        order = np.argsort(np.sum((xy - xy.mean(axis=0)) ** 2, axis=1), kind="stable")
+        found = 0
+        for k in order[:: max(1, order.size // 64)][:tries_per_region]:
+            x, y = known[k]
+            p = params[lookup[(x, y)]].copy()
+            seed = zncc_search(reference, target, x, y, half, int(settings.search_radius_px), (p[0], p[6]))
+            if seed is None or not seed.zncc >= min_zncc:
+                continue
+            p[0], p[6] = seed.parameters[0], seed.parameters[6]
+            seeds.append(Seed(x, y, p, seed.zncc))
+            found += 1
+            if found >= per_region:
+                break
+    return seeds
 
 
 # ---------------------------------------------------------------------------------------------------------
@@ -343,6 +393,9 @@ class StereoShape:
     #: The right reference image, prepared as the stereo match sampled it: the stereo match's uncertainty needs
     #: what the right camera sees (its blur and scale, :func:`measurement.uncertainty.match.cross_hessians`).
     right_reference: PreparedImage | None = field(default=None, repr=False)
+    #: IC-GN's reference side of every node of the correlated grid (:class:`measurement.dic.ReferenceCache`),
+    #: filled by the stereo match and read by both matches of every state.
+    reference_cache: ReferenceCache | None = field(default=None, repr=False)
 
 
 @dataclass
@@ -392,6 +445,9 @@ class StereoState:
     calibration_cov_U_mm2: np.ndarray | None = field(default=None, repr=False)
     #: The calibration's sigma of the mean of U over the measured points (3,) mm: the part common to the field.
     calibration_sigma_mean_U_mm: np.ndarray | None = field(default=None, repr=False)
+    #: Which seeds each match kept: {"left": ..., "right": ...}, "features" or "previous state" (a warm start
+    #: from the state measured before it, see :func:`measure_state`).
+    seeded_by: dict | None = None
 
     @property
     def valid(self) -> np.ndarray:
@@ -447,8 +503,10 @@ def reference_shape(left: ScheimpflugCamera, right: ScheimpflugCamera, R_right_f
         if not measure_grid.active.any():
             raise StereoMatchError(f"auto ROI: none of the {grid.count} points of interest of the left reference "
                                    f"has enough texture (noise {sigma:.3g} grey)")
+    cache = ReferenceCache.for_grid(prepared.values, measure_grid, settings,
+                                    subset_min_std(settings, prepared.values))
     match = correlate_with_features(prepared, right_ref, settings, measure_grid, name="right reference",
-                                    reference_features=features)
+                                    reference_features=features, reference_cache=cache)
     if auto_roi is not None:
         match, flags = flag_inconsistent(expand_result(match, grid), auto_roi, left_ref, sigma)
         report = AutoRoiReport(grid.count, grid.count - measure_grid.count,
@@ -462,6 +520,7 @@ def reference_shape(left: ScheimpflugCamera, right: ScheimpflugCamera, R_right_f
                          max_median_residual_px=max_median_residual_px, min_measured_fraction=min_measured_fraction)
     shape = StereoShape(match.x, match.y, match, tri.X_left_mm, tri.reprojection_error_px, valid, grid, prepared,
                         features, quality, auto_roi, None if auto_roi is None else measure_grid, sigma, report)
+    shape.reference_cache = cache
     shape.right_reference = prepare_image(right_ref, settings.interpolation, False, "right reference",
                                           settings.lowpass_sigma_px)
     if uncertainty:
@@ -514,8 +573,13 @@ def measure_state(left: ScheimpflugCamera, right: ScheimpflugCamera, R_right_fro
                   settings: DICSettings = STEREO_DIC_SETTINGS, *,
                   max_median_residual_px: float | None = MAX_MEDIAN_RESIDUAL_PX,
                   min_measured_fraction: float | None = MIN_MEASURED_FRACTION,
-                  name: str = "deformed state") -> StereoState:
+                  name: str = "deformed state", previous: StereoState | None = None) -> StereoState:
     """Match left-ref -> left-def and left-ref -> right-def, triangulate, and difference with the reference.
+
+    ``previous``: the state measured just before in the same sequence (same shape). Its matches seed this
+    state's (:func:`sequence_seeds`: a template search per band instead of feature matching of the whole images);
+    where that converges fewer than :data:`WARM_START_MIN_SHARE` of the points the previous match did, the match
+    is made again from feature seeds. ``StereoState.seeded_by`` says which seeds each match kept.
 
     Raises
     ------
@@ -527,16 +591,32 @@ def measure_state(left: ScheimpflugCamera, right: ScheimpflugCamera, R_right_fro
     check_thresholds(max_median_residual_px, min_measured_fraction)
     _check_rig_images(left, right, {"left deformed": left_def, "right deformed": right_def})
     reference = shape.reference if shape.reference is not None else left_ref
-    features = shape.reference_features if shape.reference_features is not None else detect_features(left_ref)
-    # The two feature matchings (OpenCV, single-threaded for the most part) run side by side.
-    with ThreadPoolExecutor(2) as pool:
-        left_matches, right_matches = pool.map(lambda item: match_features(features, item[0], name=item[1]),
-                                               ((left_def, "left deformed"), (right_def, "right deformed")))
     grid = shape.measure_grid if shape.measure_grid is not None else shape.grid
-    left_match = correlate_with_features(reference, left_def, settings, grid, name="left deformed",
-                                         matches=left_matches)
-    right_match = correlate_with_features(reference, right_def, settings, grid, name="right deformed",
-                                          matches=right_matches)
+    cache = shape.reference_cache if shape.reference is not None else None
+    matched = {}
+    if previous is not None:
+        values = reference.values if isinstance(reference, PreparedImage) else np.asarray(reference, dtype=np.float64)
+        for side, target, before in (("left", left_def, previous.left_match), ("right", right_def,
+                                                                                previous.right_match)):
+            seeds = sequence_seeds(values, np.asarray(target), grid, before, settings)
+            if not seeds:
+                continue
+            result = correlate(reference, target, settings, grid=grid, seeds=seeds, reference_cache=cache)
+            if np.count_nonzero(result.converged) >= WARM_START_MIN_SHARE * np.count_nonzero(before.converged):
+                matched[side] = result
+    missing = [(side, target, f"{side} deformed") for side, target in (("left", left_def), ("right", right_def))
+               if side not in matched]
+    if missing:
+        features = shape.reference_features if shape.reference_features is not None else detect_features(left_ref)
+        # The feature matchings (OpenCV, single-threaded for the most part) run side by side.
+        with ThreadPoolExecutor(len(missing)) as pool:
+            feature_matches = list(pool.map(lambda item: match_features(features, item[1], name=item[2]), missing))
+        for (side, target, label), matches in zip(missing, feature_matches):
+            matched[side] = correlate_with_features(reference, target, settings, grid, name=label, matches=matches,
+                                                    reference_cache=cache)
+    left_match, right_match = matched["left"], matched["right"]
+    seeded_by = {side: "features" if side in {m[0] for m in missing} else "previous state"
+                 for side in ("left", "right")}
     reasons = {}
     if shape.auto_roi is not None:
         left_match, left_flags = flag_inconsistent(expand_result(left_match, shape.grid), shape.auto_roi, left_ref,
@@ -568,7 +648,7 @@ def measure_state(left: ScheimpflugCamera, right: ScheimpflugCamera, R_right_fro
         report = AutoRoiReport(shape.x.size, low, int(np.count_nonzero(status == Status.INCONSISTENT)),
                                shape.noise_sigma_grey, reasons)
     state = StereoState(X, U, np.linalg.norm(U, axis=1), residual, np.where(ok, zncc, np.nan), status, left_match,
-                        right_match, quality, report)
+                        right_match, quality, report, seeded_by=seeded_by)
     if shape.subsets is not None:
         _state_uncertainty(state, shape, left, right, R_right_from_left, T_right_from_left_mm, left_def, right_def)
     return state

@@ -73,8 +73,35 @@ def _sigmas_um(cov_mm2, n: int) -> np.ndarray:
     return 1e3 * np.sqrt(np.where(diag >= 0, diag, np.nan))
 
 
-def state_rows(shape: StereoShape, state: StereoState | None = None) -> list[list[str]]:
-    """The rows of :func:`write_state_csv` (columns :data:`CSV_COLUMNS`), as text, one per point."""
+def text_lines(columns: list[tuple[str, np.ndarray]]) -> list[str]:
+    """Rows of a table as CSV text lines (no line ends), one format per column kind, formatted row by row in C.
+
+    ``columns``: (kind, values (N,)) with kind ``"g"`` (float, ``%.9g``; NaN and +-inf written ``nan``), ``"d"``
+    (integer) or ``"s"`` (text, written as it is: no commas or quotes, so no CSV quoting is needed). The same text
+    :mod:`csv` writes for these values, ~30x faster than formatting value by value (a 70 000-point state's
+    38 columns in ~0.3 s).
+    """
+    formats, lists = [], []
+    for kind, values in columns:
+        values = np.asarray(values)
+        if kind == "g":
+            values = values.astype(np.float64)
+            values = np.where(np.isfinite(values), values, np.nan)
+            formats.append("%.9g")
+        elif kind == "d":
+            values = values.astype(np.int64)
+            formats.append("%d")
+        elif kind == "s":
+            formats.append("%s")
+        else:
+            raise ValueError(f"column kind must be 'g', 'd' or 's', got {kind!r}")
+        lists.append(values.tolist())
+    row_format = ",".join(formats)
+    return [row_format % row for row in zip(*lists)]
+
+
+def state_columns(shape: StereoShape, state: StereoState | None = None) -> list[tuple[str, np.ndarray]]:
+    """The columns :data:`CSV_COLUMNS` of :func:`write_state_csv`, as (kind, values) for :func:`text_lines`."""
     if state is None:
         X = shape.X_mm
         U = np.zeros_like(X)
@@ -88,22 +115,33 @@ def state_rows(shape: StereoShape, state: StereoState | None = None) -> list[lis
     D = np.linalg.norm(U, axis=1)
     sig = state_sigmas(shape, state)
     flag = sig.pop("sigma_flag")
-    table = np.column_stack(list(sig.values()))
-    return [[str(int(shape.x[k])), str(int(shape.y[k])), *(_fmt(v) for v in X[k]), *(_fmt(v) for v in U[k]),
-             _fmt(D[k]), _fmt(zncc[k]), _fmt(residual[k]), str(int(status[k])), Status(int(status[k])).name.lower(),
-             *(_fmt(v) for v in table[k]), "" if flag[k] < 0 else str(int(flag[k]))]
-            for k in range(shape.x.size)]
+    names = {int(code): Status(int(code)).name.lower() for code in np.unique(status)}
+    return [("d", shape.x), ("d", shape.y), *(("g", c) for c in X.T), *(("g", c) for c in U.T), ("g", D),
+            ("g", zncc), ("g", residual), ("d", status), ("s", [names[int(v)] for v in status]),
+            *(("g", v) for v in sig.values()), ("s", ["" if v < 0 else str(int(v)) for v in flag.tolist()])]
+
+
+def state_rows(shape: StereoShape, state: StereoState | None = None) -> list[list[str]]:
+    """The rows of :func:`write_state_csv` (columns :data:`CSV_COLUMNS`), as text, one per point."""
+    return [line.split(",") for line in text_lines(state_columns(shape, state))]
 
 
 def write_state_csv(path: str | Path, shape: StereoShape, state: StereoState | None = None) -> Path:
     """Per-point CSV: left reference pixel (x, y), position X, Y, Z and displacement U, V, W, D (left camera
     frame, mm), ZNCC, triangulation residual (px), status, and the uncertainty (:data:`SIGMA_COLUMNS`, µm).
     ``state=None`` writes the reference shape."""
+    write_csv_lines(path, CSV_COLUMNS, text_lines(state_columns(shape, state)))
+    return Path(path)
+
+
+def write_csv_lines(path: str | Path, header, lines: list[str]) -> Path:
+    """A CSV file from its header and its text lines (:func:`text_lines`), atomically, with the line ends the
+    :mod:`csv` module writes (CRLF)."""
     path = Path(path)
     with atomic_writer(path, "w", newline="") as handle:
-        writer = csv.writer(handle)
-        writer.writerow(CSV_COLUMNS)
-        writer.writerows(state_rows(shape, state))
+        handle.write(",".join(header) + "\r\n")
+        if lines:
+            handle.write("\r\n".join(lines) + "\r\n")
     return path
 
 
@@ -121,14 +159,15 @@ def write_state_vtk(path: str | Path, shape: StereoShape, state: StereoState | N
     n = X.shape[0]
     lines = ["# vtk DataFile Version 3.0", "stereo-DIC points (left camera frame, mm)", "ASCII", "DATASET POLYDATA",
              f"POINTS {n} double"]
-    lines += [f"{a:.9g} {b:.9g} {c:.9g}" for a, b, c in X]
+    lines += ["%.9g %.9g %.9g" % tuple(row) for row in X.tolist()]
     lines += [f"VERTICES {n} {2 * n}"] + [f"1 {k}" for k in range(n)]
     lines += [f"POINT_DATA {n}", "VECTORS displacement_mm double"]
-    lines += [f"{a:.9g} {b:.9g} {c:.9g}" for a, b, c in U]
+    lines += ["%.9g %.9g %.9g" % tuple(row) for row in U.tolist()]
     for name, values in (("D_mm", np.linalg.norm(U, axis=1)), ("zncc", zncc), ("residual_px", residual),
                          ("x_px", shape.x[valid]), ("y_px", shape.y[valid]),
                          *((name, values[valid]) for name, values in sig.items())):
-        lines += [f"SCALARS {name} double 1", "LOOKUP_TABLE default"] + [f"{v:.9g}" for v in values]
+        lines += [f"SCALARS {name} double 1", "LOOKUP_TABLE default"] + list(map("{:.9g}".format,
+                                                                                  np.asarray(values).tolist()))
     atomic_write_text(path, "\n".join(lines) + "\n")
     return path
 

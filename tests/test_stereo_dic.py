@@ -127,3 +127,172 @@ def test_workbench_stereo_cli(renders, tmp_path, capsys):
     # missing calibration file: one clear line, exit code 2
     assert main(args[:2] + [str(tmp_path / "none.json")] + args[3:]) == 2
     assert "calibration file not found" in capsys.readouterr().err
+
+
+# --- the reference side computed once per sequence, warm starts, fast per-point files (issue 39) ---------------
+
+@pytest.fixture(scope="module")
+def measured(renders):
+    images, _, _ = renders
+    shape = reference_shape(RIG.left, RIG.right, RIG.R_right_from_left, RIG.T_right_from_left_mm,
+                            images["left_ref"], images["right_ref"], SETTINGS, roi=_roi())
+    state = measure_state(RIG.left, RIG.right, RIG.R_right_from_left, RIG.T_right_from_left_mm, shape,
+                          images["left_ref"], images["left_def"], images["right_def"], SETTINGS)
+    return images, shape, state
+
+
+def _seeds_of(result, count=8):
+    from measurement.dic import Seed
+
+    ok = np.flatnonzero(result.converged)
+    return [Seed(int(result.x[k]), int(result.y[k]), result.parameters[k]) for k in ok[:: ok.size // count][:count]]
+
+
+def test_a_match_reading_the_reference_cache_equals_one_that_prepares_every_subset_again(measured):
+    """Same seeds, same images: the cached Hessians, means and norms give the same numbers to 1e-12 px."""
+    from measurement.dic import correlate
+
+    images, shape, state = measured
+    cache = shape.reference_cache
+    assert cache.filled_fraction > 0.9      # the stereo match filled it: the states read it
+    seeds = _seeds_of(state.left_match)
+    fresh = correlate(shape.reference, images["left_def"], SETTINGS, grid=shape.grid, seeds=seeds)
+    cached = correlate(shape.reference, images["left_def"], SETTINGS, grid=shape.grid, seeds=seeds,
+                       reference_cache=cache)
+    assert np.array_equal(fresh.status, cached.status)
+    ok = fresh.converged
+    assert ok.mean() > 0.95
+    assert np.max(np.abs(fresh.u[ok] - cached.u[ok])) <= 1e-12
+    assert np.max(np.abs(fresh.v[ok] - cached.v[ok])) <= 1e-12
+    assert np.max(np.abs(fresh.zncc[ok] - cached.zncc[ok])) <= 1e-12
+
+
+def test_a_reference_cache_is_refused_for_another_reference_grid_or_setting(measured):
+    from dataclasses import replace
+
+    from measurement.dic import correlate, poi_grid
+
+    images, shape, state = measured
+    cache = shape.reference_cache
+    with pytest.raises(ValueError, match="reference_cache was made for another match: .*the reference image"):
+        correlate(images["right_ref"], images["left_def"], SETTINGS, grid=shape.grid, reference_cache=cache)
+    other_grid = poi_grid(images["left_ref"].shape, SETTINGS.subset_size, SETTINGS.step + 2, roi=_roi())
+    with pytest.raises(ValueError, match="the grid of points of interest"):
+        correlate(shape.reference, images["left_def"], SETTINGS, grid=other_grid, reference_cache=cache)
+    with pytest.raises(ValueError, match=r"order \(1, the cache has 2\)"):
+        correlate(shape.reference, images["left_def"], replace(SETTINGS, order=1), grid=shape.grid,
+                  reference_cache=cache)
+
+
+def test_a_cache_of_another_reference_would_move_the_matches(measured):
+    """Why the refusal matters: the left reference's cached Hessians, means and norms used for a reference shifted
+    by 1 px (the check bypassed by hand) move the matches by more than 0.01 px (ten times IC-GN's tolerance; a
+    median ~0.06 px measured) or fail them. So the 1e-12 px equality test above can fail."""
+    from measurement.dic import ReferenceCache, correlate
+    from measurement.dic.correlate import prepare_image, subset_min_std
+    from measurement.dic.reference_cache import _fingerprint
+
+    images, shape, state = measured
+    shifted = np.roll(images["left_ref"], 1, axis=1)
+    prepared = prepare_image(shifted, SETTINGS.interpolation, True, "shifted")
+    seeds = _seeds_of(state.left_match)
+    fresh = correlate(prepared, images["left_def"], SETTINGS, grid=shape.grid, seeds=seeds)
+    wrong = ReferenceCache.for_grid(shape.reference.values, shape.grid, SETTINGS,
+                                    subset_min_std(SETTINGS, prepared.values))
+    correlate(shape.reference, images["left_def"], SETTINGS, grid=shape.grid, seeds=seeds, reference_cache=wrong)
+    wrong._values, wrong.fingerprint = prepared.values, _fingerprint(prepared.values)     # the bypass
+    reused = correlate(prepared, images["left_def"], SETTINGS, grid=shape.grid, seeds=seeds, reference_cache=wrong)
+    both = fresh.converged & reused.converged
+    lost = np.mean(fresh.converged & ~reused.converged)
+    error = np.abs(reused.u[both] - fresh.u[both])
+    assert lost > 0.5 or np.median(error) > 0.01, (lost, np.median(error))
+
+
+def test_a_state_warm_started_from_the_previous_one_measures_what_feature_seeds_measure(measured):
+    """The warm start replaces feature matching; the matches agree to 1e-4 px (a tenth of the IC-GN tolerance),
+    and a previous state the seeds cannot follow (every point 200 px off) falls back to feature seeds."""
+    from copy import deepcopy
+
+    images, shape, state = measured
+    warm = measure_state(RIG.left, RIG.right, RIG.R_right_from_left, RIG.T_right_from_left_mm, shape,
+                         images["left_ref"], images["left_def"], images["right_def"], SETTINGS, previous=state)
+    assert warm.seeded_by == {"left": "previous state", "right": "previous state"}
+    assert state.seeded_by == {"left": "features", "right": "features"}
+    assert np.array_equal(warm.valid, state.valid)
+    ok = warm.valid
+    for side in ("left_match", "right_match"):
+        a, b = getattr(warm, side), getattr(state, side)
+        assert np.max(np.abs(a.u[ok] - b.u[ok])) < 1e-4 and np.max(np.abs(a.v[ok] - b.v[ok])) < 1e-4
+    far = deepcopy(state)
+    for match in (far.left_match, far.right_match):
+        match.parameters[:, 0] += 200.0
+    jumped = measure_state(RIG.left, RIG.right, RIG.R_right_from_left, RIG.T_right_from_left_mm, shape,
+                           images["left_ref"], images["left_def"], images["right_def"], SETTINGS, previous=far)
+    assert jumped.seeded_by == {"left": "features", "right": "features"}
+    assert np.array_equal(jumped.valid, state.valid)
+    assert np.nanmax(np.abs(jumped.U_mm - state.U_mm)) < 1e-5
+
+
+def _csv_reference(header, rows):
+    """The per-value writer the fast one replaced (csv module, one value at a time): the independent reference."""
+    import csv
+    import io
+
+    def fmt(value):
+        return "nan" if not np.isfinite(value) else f"{value:.9g}"
+
+    buffer = io.StringIO(newline="")
+    writer = csv.writer(buffer)
+    writer.writerow(header)
+    for row in rows:
+        writer.writerow([fmt(v) if isinstance(v, float) else str(v) for v in row])
+    return buffer.getvalue()
+
+
+def test_per_point_files_hold_the_text_a_value_by_value_writer_gives(measured, tmp_path):
+    """write_state_csv / write_points_with_truth / write_state_vtk, byte for byte against value-by-value
+    formatting, with NaN, +-inf, -0 and extreme magnitudes in the columns."""
+    from copy import deepcopy
+
+    from measurement.stereo_io import CSV_COLUMNS, state_sigmas, write_state_csv, write_state_vtk
+    from workbench.points_with_truth import TRUTH_COLUMNS, Alignment, write_points_with_truth
+
+    images, shape, state = measured
+    state = deepcopy(state)
+    n = shape.x.size
+    state.X_mm[0] = [np.inf, -np.inf, -0.0]
+    state.X_mm[1] = [1.23456789012e-300, -9.87654321e+250, 1e-5]
+    state.zncc[2] = np.nan
+    write_state_csv(tmp_path / "state.csv", shape, state)
+    D = np.linalg.norm(state.U_mm, axis=1)
+    sig = state_sigmas(shape, state)
+    flag = sig.pop("sigma_flag")
+    from measurement.dic import Status
+
+    rows = [[int(shape.x[k]), int(shape.y[k]), *map(float, state.X_mm[k]), *map(float, state.U_mm[k]), float(D[k]),
+             float(state.zncc[k]), float(state.residual_px[k]), int(state.status[k]),
+             Status(int(state.status[k])).name.lower(), *(float(v[k]) for v in sig.values()),
+             "" if flag[k] < 0 else int(flag[k])] for k in range(n)]
+    assert (tmp_path / "state.csv").read_bytes().decode() == _csv_reference(CSV_COLUMNS, rows)
+
+    rng = np.random.default_rng(0)
+    X_true_ref, X_true = rng.normal(size=(n, 3)), rng.normal(size=(n, 3))
+    X_true[3] = np.nan
+    on = rng.random(n) > 0.2
+    R, t = np.eye(3)[[1, 0, 2]], np.array([0.5, -1.0, 2.0])
+    write_points_with_truth(tmp_path / "truth.csv", shape, state, X_true_ref, X_true, on, Alignment(R, t, 5),
+                            extra={"bonus": np.arange(n) * 0.1})
+    X_al, U_al, U_true = state.X_mm @ R.T + t, state.U_mm @ R.T, X_true - X_true_ref
+    truth_rows = [row + [*map(float, (*X_al[k], *U_al[k], *X_true[k], *U_true[k], np.linalg.norm(U_true[k]))),
+                         int(on[k]), float(k * 0.1)] for k, row in enumerate(rows)]
+    expected = _csv_reference([*CSV_COLUMNS, *TRUTH_COLUMNS, "bonus"], truth_rows)
+    assert (tmp_path / "truth.csv").read_bytes().decode() == expected
+
+    write_state_vtk(tmp_path / "state.vtk", shape, state)
+    ok = state.valid
+    text = (tmp_path / "state.vtk").read_text().splitlines()
+    m = int(ok.sum())
+    assert text[4] == f"POINTS {m} double"
+    assert text[5:5 + m] == [" ".join(f"{float(v):.9g}" for v in X) for X in state.X_mm[ok]]
+    zncc_at = text.index("SCALARS zncc double 1")
+    assert text[zncc_at + 2:zncc_at + 2 + m] == [f"{float(v):.9g}" for v in state.zncc[ok]]

@@ -16,15 +16,14 @@ written, so a user sees what was lost.
 """
 from __future__ import annotations
 
-import csv
 import json
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-from labio.atomic import atomic_write_text, atomic_writer
-from measurement.stereo_io import CSV_COLUMNS, state_rows
+from labio.atomic import atomic_write_text
+from measurement.stereo_io import CSV_COLUMNS, state_columns, text_lines, write_csv_lines
 
 TRUTH_COLUMNS = ("X_al", "Y_al", "Z_al", "U_al", "V_al", "W_al", "X_true", "Y_true", "Z_true", "U_true", "V_true",
                  "W_true", "D_true", "on_specimen")
@@ -46,10 +45,6 @@ class Alignment:
                 "formula": "X_al = R @ X + t_mm; U_al = R @ U", "R": np.asarray(self.R).tolist(),
                 "t_mm": np.asarray(self.t_mm).tolist(), "rotation_deg": angle, "points": int(self.points),
                 "fitted_on": self.fitted_on}
-
-
-def _fmt(value: float) -> str:
-    return "nan" if not np.isfinite(value) else f"{value:.9g}"
 
 
 def write_points_with_truth(path: str | Path, shape, state, X_true_ref_mm: np.ndarray, X_true_mm: np.ndarray,
@@ -85,13 +80,9 @@ def write_points_with_truth(path: str | Path, shape, state, X_true_ref_mm: np.nd
     X_al, U_al = X @ R.T + t, U @ R.T
     U_true = X_true_mm - X_true_ref_mm
     D_true = np.linalg.norm(U_true, axis=1)
-    with atomic_writer(path, "w", newline="") as handle:
-        writer = csv.writer(handle)
-        writer.writerow([*CSV_COLUMNS, *TRUTH_COLUMNS, *extra])
-        for k, row in enumerate(state_rows(shape, state)):
-            writer.writerow([*row, *(_fmt(v) for v in (*X_al[k], *U_al[k], *X_true_mm[k], *U_true[k], D_true[k])),
-                             str(int(bool(on_specimen[k]))), *(_fmt(values[k]) for values in extra.values())])
-    return path
+    columns = [*state_columns(shape, state), *(("g", c) for c in (*X_al.T, *U_al.T, *X_true_mm.T, *U_true.T)),
+               ("g", D_true), ("d", np.asarray(on_specimen, dtype=bool)), *(("g", v) for v in extra.values())]
+    return write_csv_lines(path, [*CSV_COLUMNS, *TRUTH_COLUMNS, *extra], text_lines(columns))
 
 
 def write_alignment(folder: str | Path, alignment: Alignment) -> Path:

@@ -7,6 +7,7 @@ propagation. One module per algorithm:
 - :mod:`.icgn` — the IC-GN iteration for one subset, and a parallel batch;
 - :mod:`.initial` — ZNCC search for seeds (with rotations), the :class:`Seed` other guessers produce;
 - :mod:`.guide` — reliability-guided propagation over the POI grid;
+- :mod:`.reference_cache` — the reference side of IC-GN kept for every match of one reference;
 - :mod:`.grid` — POIs from ROI, mask, subset and step;
 - :mod:`.correlate` — the entry point :func:`correlate` and :class:`DICResult`.
 
@@ -18,7 +19,8 @@ from . import _numba_cache  # noqa: F401  (must precede the modules that define 
 from .correlate import DICResult, DICSettings, correlate
 from .grid import PoiGrid, poi_grid
 from .initial import Seed
+from .reference_cache import ReferenceCache
 from .shape_functions import PARAMETER_NAMES
 from .status import Status
 
-__all__ = ["DICResult", "DICSettings", "PARAMETER_NAMES", "PoiGrid", "Seed", "Status", "correlate", "poi_grid"]
+__all__ = ["DICResult", "DICSettings", "PARAMETER_NAMES", "PoiGrid", "ReferenceCache", "Seed", "Status", "correlate", "poi_grid"]

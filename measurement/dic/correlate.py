@@ -22,8 +22,9 @@ from labio.atomic import atomic_writer
 from . import bspline
 from .grid import PoiGrid, check_subset_size, poi_grid
 from .guide import band_regions, propagate
-from .icgn import correlate_batch
+from .icgn import INFO_SIZE, correlate_batch
 from .initial import DEFAULT_SEED_ANGLES_DEG, Seed, zncc_search
+from .reference_cache import ReferenceCache
 from .shape_functions import N_PARAMETERS, PARAMETER_NAMES, SECOND_ORDER
 from .status import CONVERGED, NOT_REACHED, Status
 
@@ -285,6 +286,14 @@ def reference_subset_status(values: np.ndarray, xs: np.ndarray, ys: np.ndarray, 
     return status
 
 
+def subset_min_std(settings: DICSettings, reference_values: np.ndarray) -> float:
+    """The texture threshold a match applies to its reference subsets: ``settings.min_subset_std`` or, when None,
+    0.5 % of the reference's grey range (grey)."""
+    if settings.min_subset_std is not None:
+        return float(settings.min_subset_std)
+    return _default_min_std(reference_values)
+
+
 def _default_min_std(values: np.ndarray) -> float:
     # a strided subsample estimates the grey range just as well, at 1/16 of the cost
     low, high = np.nanpercentile(values[::4, ::4], [0.5, 99.5])
@@ -374,7 +383,8 @@ def correlate(reference: np.ndarray, deformed: np.ndarray, settings: DICSettings
               seed_guess_px: tuple[float, float] = (0.0, 0.0),
               seeds: list[Seed] | None = None,
               initial_parameters: np.ndarray | None = None,
-              grid: PoiGrid | None = None) -> DICResult:
+              grid: PoiGrid | None = None,
+              reference_cache: ReferenceCache | None = None) -> DICResult:
     """Subset DIC between two grey images.
 
     Parameters
@@ -402,6 +412,11 @@ def correlate(reference: np.ndarray, deformed: np.ndarray, settings: DICSettings
         is evaluated at the POIs.
     grid : PoiGrid, optional
         Use this grid instead of building one from ``roi``/``mask``/settings.
+    reference_cache : ReferenceCache, optional
+        The reference side of every node, kept between matches of the same reference
+        (:class:`.reference_cache.ReferenceCache`, made with ``ReferenceCache.for_grid`` for this reference, grid
+        and settings): filled where a node is first matched, read afterwards. Same results, less work per match.
+        A cache made for another reference, grid or settings raises ValueError naming the difference.
 
     Returns
     -------
@@ -448,7 +463,13 @@ def correlate(reference: np.ndarray, deformed: np.ndarray, settings: DICSettings
                          f"{settings.subset_size}")
     half = grid.half
     degree = ref.spline.degree
-    min_std = settings.min_subset_std if settings.min_subset_std is not None else _default_min_std(ref.values)
+    min_std = subset_min_std(settings, ref.values)
+    if reference_cache is not None:
+        reference_cache.check(ref.values, grid, settings, min_std)
+        cache_arrays = (True, reference_cache.info, reference_cache.hinv, reference_cache.a, reference_cache.s)
+    else:
+        cache_arrays = (False, np.zeros((1, 1, INFO_SIZE)), np.zeros((1, 1, 1, 1)), np.zeros((1, 1, 1)),
+                        np.zeros((1, 1, 1)))
     bad = dfm.invalid if dfm.invalid is not None else np.zeros((1, 1), dtype=bool)
     check_bad = dfm.invalid is not None
     n_rows, n_cols = grid.shape
@@ -475,7 +496,8 @@ def correlate(reference: np.ndarray, deformed: np.ndarray, settings: DICSettings
         ss = np.empty((xs.size, 2))
         correlate_batch(ref.values, ref.spline.grad_x, ref.spline.grad_y, dfm.spline.coefficients, degree, bad,
                         check_bad, xs, ys, half, settings.order, min_std, guesses, int(settings.max_iterations),
-                        float(settings.tolerance_px), float(settings.min_zncc), st, zn, it, ss)
+                        float(settings.tolerance_px), float(settings.min_zncc), st, zn, it, ss, *cache_arrays,
+                        active_rc.astype(np.int64))
         r, c = active_rc[:, 0], active_rc[:, 1]
         params[r, c] = guesses
         status[r, c] = st
@@ -511,14 +533,14 @@ def correlate(reference: np.ndarray, deformed: np.ndarray, settings: DICSettings
                           check_bad, grid.x.astype(np.int64), grid.y.astype(np.int64), grid.active, region,
                           n_regions, seed_rc, seed_p, half, settings.order, min_std, int(settings.max_iterations),
                           float(settings.tolerance_px), float(settings.min_zncc), params, status, zncc, iterations,
-                          sssig, False)
+                          sssig, False, *cache_arrays)
             unreached = grid.active & (status == NOT_REACHED)
             if n_regions > 1 and unreached.any() and (status == CONVERGED).any():
                 propagate(ref.values, ref.spline.grad_x, ref.spline.grad_y, dfm.spline.coefficients, degree,
                           bad, check_bad, grid.x.astype(np.int64), grid.y.astype(np.int64), grid.active,
                           np.zeros(grid.shape, dtype=np.int64), 1, seed_rc[:0], seed_p[:0], half, settings.order,
                           min_std, int(settings.max_iterations), float(settings.tolerance_px),
-                          float(settings.min_zncc), params, status, zncc, iterations, sssig, True)
+                          float(settings.min_zncc), params, status, zncc, iterations, sssig, True, *cache_arrays)
         timings["propagation"] = time.perf_counter() - t
         if found and not (status == CONVERGED).any():
             # Every seed failed in IC-GN: their guesses were not acceptable matches.

@@ -19,7 +19,7 @@ import heapq
 import numba
 import numpy as np
 
-from .icgn import solve_point
+from .icgn import solve_node
 from .shape_functions import shift_parameters
 from .status import CONVERGED, NOT_REACHED
 
@@ -38,7 +38,8 @@ def _priority(zncc):
 @numba.njit(cache=True)
 def _propagate_region(image, grad_x, grad_y, coef, degree, bad, check_bad, grid_x, grid_y, active, region,
                       region_id, seed_rc, seed_p, half, order, min_std, max_iterations, tolerance_px, min_zncc,
-                      params, status, zncc, iterations, sssig, resume):
+                      params, status, zncc, iterations, sssig, resume, use_cache, cache_info, cache_hinv, cache_a,
+                      cache_s):
     n_rows, n_cols = grid_x.shape
     heap = [(0.0, 0)]
     heap.pop()
@@ -49,9 +50,10 @@ def _propagate_region(image, grad_x, grad_y, coef, degree, bad, check_bad, grid_
             continue
         for j in range(12):
             guess[j] = seed_p[k, j]
-        st, score, it, sx, sy = solve_point(image, grad_x, grad_y, coef, degree, bad, check_bad, grid_x[r, c],
-                                             grid_y[r, c], half, order, min_std, guess, max_iterations,
-                                             tolerance_px, min_zncc)
+        st, score, it, sx, sy = solve_node(image, grad_x, grad_y, coef, degree, bad, check_bad, grid_x[r, c],
+                                            grid_y[r, c], half, order, min_std, guess, max_iterations,
+                                            tolerance_px, min_zncc, use_cache, cache_info, cache_hinv, cache_a,
+                                            cache_s, r, c)
         # A seed that fails leaves its point free for a neighbour to reach later.
         if st == CONVERGED:
             params[r, c, :] = guess
@@ -90,9 +92,10 @@ def _propagate_region(image, grad_x, grad_y, coef, degree, bad, check_bad, grid_
                 continue
             shift_parameters(source, float(grid_x[r, c] - grid_x[r0, c0]), float(grid_y[r, c] - grid_y[r0, c0]),
                              guess)
-            st, score, it, sx, sy = solve_point(image, grad_x, grad_y, coef, degree, bad, check_bad,
-                                                 grid_x[r, c], grid_y[r, c], half, order, min_std, guess,
-                                                 max_iterations, tolerance_px, min_zncc)
+            st, score, it, sx, sy = solve_node(image, grad_x, grad_y, coef, degree, bad, check_bad,
+                                                grid_x[r, c], grid_y[r, c], half, order, min_std, guess,
+                                                max_iterations, tolerance_px, min_zncc, use_cache, cache_info,
+                                                cache_hinv, cache_a, cache_s, r, c)
             status[r, c] = st
             zncc[r, c] = score
             iterations[r, c] = it
@@ -106,7 +109,7 @@ def _propagate_region(image, grad_x, grad_y, coef, degree, bad, check_bad, grid_
 @numba.njit(cache=True, parallel=True)
 def propagate(image, grad_x, grad_y, coef, degree, bad, check_bad, grid_x, grid_y, active, region, n_regions,
               seed_rc, seed_p, half, order, min_std, max_iterations, tolerance_px, min_zncc,
-              params, status, zncc, iterations, sssig, resume):
+              params, status, zncc, iterations, sssig, resume, use_cache, cache_info, cache_hinv, cache_a, cache_s):
     """Reliability-guided IC-GN over every region in parallel.
 
     Parameters
@@ -138,11 +141,16 @@ def propagate(image, grad_x, grad_y, coef, degree, bad, check_bad, grid_x, grid_
         Also start from the converged nodes that border unreached ones in their region (no seed needed):
         used for a last pass with a single region, so bands whose own seeds failed are reached from their
         neighbours.
+    use_cache : bool; cache_info, cache_hinv, cache_a, cache_s : ndarray
+        The reference side of every node (:class:`.reference_cache.ReferenceCache`'s arrays, shaped as the
+        grid): read where a node's record is filled, computed and written where not. Ignored (any shape) when
+        ``use_cache`` is False.
     """
     for region_id in numba.prange(n_regions):
         _propagate_region(image, grad_x, grad_y, coef, degree, bad, check_bad, grid_x, grid_y, active, region,
                           region_id, seed_rc, seed_p, half, order, min_std, max_iterations, tolerance_px,
-                          min_zncc, params, status, zncc, iterations, sssig, resume)
+                          min_zncc, params, status, zncc, iterations, sssig, resume, use_cache, cache_info,
+                          cache_hinv, cache_a, cache_s)
 
 
 def band_regions(shape: tuple[int, int], n_regions: int) -> np.ndarray:

@@ -158,6 +158,34 @@ def _sums3(p, k0, dxs):
 
 
 @numba.njit(cache=True, fastmath=True)
+def _subset_mean(image_flat, corner, cols, n):
+    """Mean grey level of the ``n`` x ``n`` subset whose first pixel is flat index ``corner`` (one function, so
+    the cached and the fresh reference paths subtract the very same number)."""
+    total = 0.0
+    for r in range(n):
+        base = np.uint64(corner + r * cols)
+        for c in range(np.uint64(n)):
+            total += image_flat[base + c]
+    return total / (n * n)
+
+
+@numba.njit(cache=True, fastmath=True)
+def copy_subset(image, grad_x, grad_y, x0, y0, half, mean, f, fx, fy):
+    """The subset's values minus ``mean`` and its gradients into ``f``, ``fx``, ``fy`` (row-major), as
+    :func:`prepare_reference` leaves them: what IC-GN reads when the rest of the reference side is cached."""
+    cols = image.shape[1]
+    n = 2 * half + 1
+    corner = (y0 - half) * cols + x0 - half
+    image_flat = image.reshape(-1)
+    gx_flat = grad_x.reshape(-1)
+    gy_flat = grad_y.reshape(-1)
+    k = 0
+    for r in range(n):
+        _copy_row(image_flat, gx_flat, gy_flat, corner + r * cols, n, mean, f, fx, fy, k)
+        k += n
+
+
+@numba.njit(cache=True, fastmath=True)
 def prepare_reference(image, grad_x, grad_y, x0, y0, half, order, min_std, f, fx, fy, hinv, a, s):
     """Precompute everything IC-GN needs from one reference subset.
 
@@ -200,14 +228,9 @@ def prepare_reference(image, grad_x, grad_y, x0, y0, half, order, min_std, f, fx
     gx_flat = grad_x.reshape(-1)
     gy_flat = grad_y.reshape(-1)
     corner = (y0 - half) * cols + x0 - half
-    total = 0.0
-    for r in range(n):
-        base = np.uint64(corner + r * cols)
-        for c in range(np.uint64(n)):
-            total += image_flat[base + c]
-    if not np.isfinite(total):
+    mean = _subset_mean(image_flat, corner, cols, n)
+    if not np.isfinite(mean):
         return INVALID_IMAGE, 0.0, 0.0, 0.0
-    mean = total / (n * n)
     # moments[k, a, b]: k = 0 fx fx, 1 fx fy, 2 fy fy, 3 fx f, 4 fy f, 5 fx, 6 fy
     moments = np.zeros((7, 5, 5))
     dy_powers = np.empty(5)
@@ -618,24 +641,48 @@ def iterate(coef, degree, bad, check_bad, x0, y0, half, order, f, fx, fy, delta_
     return MAX_ITERATIONS, zncc, max_iterations
 
 
+#: A node's record in a reference cache (:mod:`.reference_cache`), float64: filled (0 or 1), the subset's status,
+#: sqrt(sum (f - f_m)^2), its mean grey level f_m, and the two SSSIG sums.
+INFO_FILLED, INFO_STATUS, INFO_DELTA_F, INFO_MEAN, INFO_SSSIG_X, INFO_SSSIG_Y = 0, 1, 2, 3, 4, 5
+INFO_SIZE = 6
+
+
 @numba.njit(cache=True)
-def solve_point(image, grad_x, grad_y, coef, degree, bad, check_bad, x, y, half, order, min_std, p,
-                max_iterations, tolerance_px, min_zncc):
-    """Reference precomputation and IC-GN for one point; ``p`` (12,) is updated in place.
+def solve_point_cached(image, grad_x, grad_y, coef, degree, bad, check_bad, x, y, half, order, min_std, p,
+                       max_iterations, tolerance_px, min_zncc, info, hinv, a, s):
+    """Reference side and IC-GN for one point; ``p`` (12,) is updated in place.
+
+    ``info`` (:data:`INFO_SIZE`,), ``hinv`` (np, np), ``a``, ``s`` (np,) are the point's record of the reference
+    side: when ``info[INFO_FILLED]`` is 0 they are computed (:func:`prepare_reference`) and written there; when 1
+    they are read, and only the subset's values and gradients are copied again (every match of a sequence
+    correlates the same reference subsets: their Hessian is made once).
 
     Returns (status, zncc, iterations, sssig_x, sssig_y); a converged point below ``min_zncc`` gets
     LOW_CORRELATION.
     """
-    npar = 6 if order == 1 else 12
     n = 2 * half + 1
     f = np.empty(n * n)
     fx = np.empty(n * n)
     fy = np.empty(n * n)
-    hinv = np.empty((npar, npar))
-    a = np.empty(npar)
-    s = np.empty(npar)
-    status, delta_f, sx, sy = prepare_reference(image, grad_x, grad_y, x, y, half, order, min_std, f, fx, fy,
-                                                hinv, a, s)
+    if info[INFO_FILLED] == 0.0:
+        status, delta_f, sx, sy = prepare_reference(image, grad_x, grad_y, x, y, half, order, min_std, f, fx, fy,
+                                                    hinv, a, s)
+        mean = 0.0
+        if status == CONVERGED:
+            mean = _subset_mean(image.reshape(-1), (y - half) * image.shape[1] + x - half, image.shape[1], n)
+        info[INFO_STATUS] = status
+        info[INFO_DELTA_F] = delta_f
+        info[INFO_MEAN] = mean
+        info[INFO_SSSIG_X] = sx
+        info[INFO_SSSIG_Y] = sy
+        info[INFO_FILLED] = 1.0
+    else:
+        status = int(info[INFO_STATUS])
+        delta_f = info[INFO_DELTA_F]
+        sx = info[INFO_SSSIG_X]
+        sy = info[INFO_SSSIG_Y]
+        if status == CONVERGED:
+            copy_subset(image, grad_x, grad_y, x, y, half, info[INFO_MEAN], f, fx, fy)
     if status != CONVERGED:
         return status, np.nan, 0, sx, sy
     status, zncc, iterations = iterate(coef, degree, bad, check_bad, x, y, half, order, f, fx, fy, delta_f, hinv,
@@ -645,16 +692,45 @@ def solve_point(image, grad_x, grad_y, coef, degree, bad, check_bad, x, y, half,
     return status, zncc, iterations, sx, sy
 
 
+@numba.njit(cache=True)
+def solve_point(image, grad_x, grad_y, coef, degree, bad, check_bad, x, y, half, order, min_std, p,
+                max_iterations, tolerance_px, min_zncc):
+    """Reference precomputation and IC-GN for one point, nothing kept (:func:`solve_point_cached` with a fresh
+    record); ``p`` (12,) is updated in place. Returns (status, zncc, iterations, sssig_x, sssig_y)."""
+    npar = 6 if order == 1 else 12
+    return solve_point_cached(image, grad_x, grad_y, coef, degree, bad, check_bad, x, y, half, order, min_std, p,
+                              max_iterations, tolerance_px, min_zncc, np.zeros(INFO_SIZE), np.empty((npar, npar)),
+                              np.empty(npar), np.empty(npar))
+
+
+@numba.njit(cache=True)
+def solve_node(image, grad_x, grad_y, coef, degree, bad, check_bad, x, y, half, order, min_std, p,
+               max_iterations, tolerance_px, min_zncc, use_cache, cache_info, cache_hinv, cache_a, cache_s, r, c):
+    """:func:`solve_point` for grid node (r, c), through the node's record in the cache arrays
+    (``cache_info`` (R, C, INFO_SIZE), ``cache_hinv`` (R, C, np, np), ``cache_a``, ``cache_s`` (R, C, np)) when
+    ``use_cache``."""
+    if use_cache:
+        return solve_point_cached(image, grad_x, grad_y, coef, degree, bad, check_bad, x, y, half, order, min_std,
+                                  p, max_iterations, tolerance_px, min_zncc, cache_info[r, c], cache_hinv[r, c],
+                                  cache_a[r, c], cache_s[r, c])
+    return solve_point(image, grad_x, grad_y, coef, degree, bad, check_bad, x, y, half, order, min_std, p,
+                       max_iterations, tolerance_px, min_zncc)
+
+
 @numba.njit(cache=True, parallel=True)
 def correlate_batch(image, grad_x, grad_y, coef, degree, bad, check_bad, xs, ys, half, order, min_std, p,
-                    max_iterations, tolerance_px, min_zncc, status, zncc, iterations, sssig):
+                    max_iterations, tolerance_px, min_zncc, status, zncc, iterations, sssig,
+                    use_cache, cache_info, cache_hinv, cache_a, cache_s, rc):
     """IC-GN on many points in parallel, each from its own initial guess ``p[k]`` (updated in place).
 
-    Outputs ``status``, ``zncc``, ``iterations`` (n,) and ``sssig`` (n, 2) are filled per point.
+    Outputs ``status``, ``zncc``, ``iterations`` (n,) and ``sssig`` (n, 2) are filled per point. With
+    ``use_cache``, point k's reference side lives in the cache arrays at grid node ``rc[k]`` (see
+    :func:`solve_node`).
     """
     for k in numba.prange(xs.shape[0]):
-        st, c, it, sx, sy = solve_point(image, grad_x, grad_y, coef, degree, bad, check_bad, xs[k], ys[k], half,
-                                        order, min_std, p[k], max_iterations, tolerance_px, min_zncc)
+        st, c, it, sx, sy = solve_node(image, grad_x, grad_y, coef, degree, bad, check_bad, xs[k], ys[k], half,
+                                       order, min_std, p[k], max_iterations, tolerance_px, min_zncc, use_cache,
+                                       cache_info, cache_hinv, cache_a, cache_s, rc[k, 0], rc[k, 1])
         status[k] = st
         zncc[k] = c
         iterations[k] = it

@@ -164,13 +164,15 @@ def stereo_command(args) -> int:
 
     from measurement.image_io import read_grey
     skipped = []
+    previous = None     # each state seeds the next (measure_state's warm start)
     for i, (fl, fr) in enumerate(tqdm(list(zip(left_files, right_files)), desc="stereo states")):
         k = i + 1
         what = f"state {k} ({fl}, {fr})"
         left_def, right_def = read_grey(fl), read_grey(fr)
         try:
             state = measure_state(rig.left, rig.right, rig.R_right_from_left, rig.T_right_from_left_mm, shape,
-                                  left_ref, left_def, right_def, settings, name=what, **thresholds)
+                                  left_ref, left_def, right_def, settings, name=what, previous=previous,
+                                  **thresholds)
         except StereoMatchError as err:
             message = f"{err}{hint}" if isinstance(err, StereoQualityError) else f"{what}: {err}"
             tqdm.write(f"workbench stereo: state {k} skipped: {message}", file=sys.stderr)
@@ -178,6 +180,7 @@ def stereo_command(args) -> int:
             rows.append({"state": names[i], "left": fl, "right": fr, "quality": getattr(err, "quality", None),
                          "error": message})
             continue
+        previous = state
         calibration_uncertainty(shape, state, rig)
         written += [write_state_csv(args.out / f"{names[i]}.csv", shape, state).name,
                     write_state_vtk(args.out / f"{names[i]}.vtk", shape, state).name]

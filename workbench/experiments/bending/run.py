@@ -184,6 +184,7 @@ def reproduce_bending(out_dir: str | Path, *, scale: float = 1.0, rig_name: str 
         pairs = pair_covariances(shape.reference, shape.subsets, shape.right_match.grid_index, grid.shape, grid.step,
                                  window=window)
     rows, maps = [], {}
+    previous = None     # each state seeds the next (measure_state's warm start)
     for k in tqdm(range(1, len(loads)), desc="stereo-DIC + strain per load", disable=not progress):
         load = float(loads[k])
         left_def = read_grey(images / truth.files[k]["left"])
@@ -191,10 +192,12 @@ def reproduce_bending(out_dir: str | Path, *, scale: float = 1.0, rig_name: str 
         start = time.perf_counter()
         try:
             state = measure_state(rig.left, rig.right, rig.R_right_from_left, rig.T_right_from_left_mm, shape,
-                                  left_ref, left_def, right_def, settings, name=f"state {k} ({load:g} N)")
+                                  left_ref, left_def, right_def, settings, name=f"state {k} ({load:g} N)",
+                                  previous=previous)
         except StereoMatchError as error:      # a state that cannot be matched (or fails the sanity check) is skipped
             rows.append({"state": k, "load_N": load, "error": f"{truth.files[k]}: {error}"})
             continue
+        previous = state
         stereo_s = time.perf_counter() - start
         # Measured deformation: the mean rigid-body motion taken out (paper §3), then strain on the point grid.
         X_def_aligned = state.X_mm @ R_al.T + t_al

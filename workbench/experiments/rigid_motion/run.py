@@ -279,16 +279,18 @@ def measure_rigid_motion(truth, images: Path, rig: CalibratedRig, *, subset_size
     sigma_px = np.hypot(*shape.right_match.predicted_std_px(noise_grey))[ok0] / np.sqrt(2.0)
     footprint_mm = float(np.linalg.norm(X_true[0][ok0].mean(axis=0))) / rig.left.fx
     rows = []
+    previous = None     # each state seeds the next (measure_state's warm start)
     for k in tqdm(range(1, len(truth.files)), desc="stereo-DIC states", disable=not progress):
         left_def = read_grey(images / truth.files[k]["left"])
         right_def = read_grey(images / truth.files[k]["right"])
         start = time.perf_counter()
         try:
             state = measure_state(rig.left, rig.right, rig.R_right_from_left, rig.T_right_from_left_mm, shape,
-                                  left_ref, left_def, right_def, settings, name=f"state {k}")
+                                  left_ref, left_def, right_def, settings, name=f"state {k}", previous=previous)
         except StereoMatchError as error:      # a state that cannot be matched (or fails the sanity check) is named
             rows.append({"state": k, "imposed_mm": float(truth.states_mm[k]), "error": f"{truth.files[k]}: {error}"})
             continue
+        previous = state
         seconds = time.perf_counter() - start
         if points_dir is not None:
             write_points_with_truth(points_dir / f"state_{k:02d}.csv", shape, state, X_true[0], X_true[k], on_face,

@@ -73,16 +73,19 @@ def run(scenario: Scenario, instrument: Instrument, store) -> dict:
                             settings, mask=measurable_mask(truth, instrument.subset_px))
     _, X_true = truth.points_of_interest(np.column_stack([shape.x, shape.y]).astype(float))
     rms, mean, fraction = [], [], []
+    previous = None     # each state seeds the next (measure_state's warm start)
     for k in range(1, len(truth.files)):
         try:
             state = measure_state(rig.left, rig.right, rig.R_right_from_left, rig.T_right_from_left_mm, shape,
                                   left_ref, read_grey(images / truth.files[k]["left"]),
-                                  read_grey(images / truth.files[k]["right"]), settings, name=f"state {k}")
+                                  read_grey(images / truth.files[k]["right"]), settings, name=f"state {k}",
+                                  previous=previous)
         except StereoMatchError:
             rms.append(float("nan"))
             mean.append(float("nan"))
             fraction.append(0.0)
             continue
+        previous = state
         ok = state.valid & shape.valid & np.all(np.isfinite(X_true[k]), axis=1) & np.all(np.isfinite(X_true[0]), axis=1)
         err = state.U_mm[ok] - (X_true[k] - X_true[0])[ok]
         rms.append(float(1e3 * np.sqrt(np.mean(np.sum(err ** 2, axis=1)))) if ok.any() else float("nan"))

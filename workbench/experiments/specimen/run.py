@@ -92,15 +92,18 @@ def measure_specimen(truth, images: Path, rig, *, subset_size: int = 33, step: i
     static = [k for k, label in enumerate(labels) if label.startswith("static")]
     rows = []
     maps = {}
+    previous = None     # each state seeds the next (measure_state's warm start)
     for k in tqdm(range(1, len(truth.files)), desc="stereo-DIC + strain per state", disable=not progress):
         start = time.perf_counter()
         try:
             state = measure_state(rig.left, rig.right, rig.R_right_from_left, rig.T_right_from_left_mm, shape,
                                   left_ref, read_grey(images / truth.files[k]["left"]),
-                                  read_grey(images / truth.files[k]["right"]), settings, name=f"state {k}")
+                                  read_grey(images / truth.files[k]["right"]), settings, name=f"state {k}",
+                                  previous=previous)
         except StereoMatchError as error:
             rows.append({"state": k, "label": labels[k], "error": str(error)})
             continue
+        previous = state
         stereo_s = time.perf_counter() - start
         seen = seen0 & np.all(np.isfinite(X_true[k]), axis=1)
         ok = state.valid & seen
