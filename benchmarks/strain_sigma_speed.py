@@ -3,7 +3,8 @@
 A bending state at full resolution has ~67 000 points on a grid 5 px apart, 65 px subsets and a 15-point strain
 window: every node sums the window's 225 points pairwise over four images. Before: every ordered pair, the
 correlation looked up per image. After (:func:`measurement.uncertainty.strain._strain_variance`): unordered pairs
-with the symmetrised kernel, each point's sigma folded into its weights once. Synthetic inputs of that size (the
+with the symmetrised kernel, each point's sigma folded into its weights once, and (issue 39, second step) a
+pair's twelve (image, component) terms as one contiguous vectorised loop. Synthetic inputs of that size (the
 sums do not depend on where the numbers came from); both kernels run in this process on the same inputs and their
 results are compared.
 

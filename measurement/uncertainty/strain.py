@@ -198,7 +198,8 @@ def _symmetric_kernel(rho):
     return S
 
 
-@numba.njit(cache=True, parallel=True)
+# reassociation (vectorised sums), not 'nnan'/'ninf': the kernel tests finiteness
+@numba.njit(cache=True, parallel=True, fastmath={"reassoc", "contract", "nsz", "arcp"})
 def _strain_variance(index, X, e1g, e2g, node_ok, r, quadratic, rho, D, reach, M, scale, out):
     # var E = sum_images sum_p sum_q g_p^T rho(q - p) g_q with g = D * b (each point's weights times its own
     # standard deviations); the double sum runs over unordered pairs with the symmetrised kernel, so every pair's
@@ -265,34 +266,45 @@ def _strain_variance(index, X, e1g, e2g, node_ok, r, quadratic, rho, D, reach, M
                 g[k, img, 1, 0], g[k, img, 1, 1] = sx * w2[k] * t2x, sy * w2[k] * t2y
                 g[k, img, 2, 0] = 0.5 * sx * (w2[k] * t1x + w1[k] * t2x)
                 g[k, img, 2, 1] = 0.5 * sy * (w2[k] * t1y + w1[k] * t2y)
-        var = np.zeros(3)
+        # the (image, component) terms of a pair as one contiguous innermost loop (x and y parts apart): it
+        # vectorises; indexed in place (a row view per pair costs an atomic reference count)
+        lanes = 3 * n_img
+        gx = np.empty((n, lanes))
+        gy = np.empty((n, lanes))
+        for k in range(n):
+            for img in range(n_img):
+                for comp in range(3):
+                    gx[k, 3 * img + comp] = g[k, img, comp, 0]
+                    gy[k, 3 * img + comp] = g[k, img, comp, 1]
+        acc = np.zeros(lanes)
         r0 = rho[reach, reach]
         if np.isfinite(r0[0, 0]):
+            q00, q01, q10, q11 = r0[0, 0], r0[0, 1], r0[1, 0], r0[1, 1]
             for k in range(n):
-                for img in range(n_img):
-                    for comp in range(3):
-                        x = g[k, img, comp, 0]
-                        y = g[k, img, comp, 1]
-                        var[comp] += x * (r0[0, 0] * x + r0[0, 1] * y) + y * (r0[1, 0] * x + r0[1, 1] * y)
+                for q in range(lanes):
+                    x = gx[k, q]
+                    y = gy[k, q]
+                    acc[q] += x * (q00 * x + q01 * y) + y * (q10 * x + q11 * y)
         for k in range(n):
             for l in range(k + 1, n):
                 a = di_[l] - di_[k]
                 b = dj_[l] - dj_[k]
                 if a < -reach or a > reach or b < -reach or b > reach:
                     continue
-                s = S[a + reach, b + reach]
-                if not np.isfinite(s[0, 0]):
+                ia, ib = a + reach, b + reach
+                s00 = S[ia, ib, 0, 0]
+                if not np.isfinite(s00):
                     continue
-                s00, s01, s10, s11 = s[0, 0], s[0, 1], s[1, 0], s[1, 1]
-                for img in range(n_img):
-                    for comp in range(3):
-                        x = g[k, img, comp, 0]
-                        y = g[k, img, comp, 1]
-                        u = g[l, img, comp, 0]
-                        v = g[l, img, comp, 1]
-                        var[comp] += x * (s00 * u + s01 * v) + y * (s10 * u + s11 * v)
+                s01, s10, s11 = S[ia, ib, 0, 1], S[ia, ib, 1, 0], S[ia, ib, 1, 1]
+                for q in range(lanes):
+                    u = gx[l, q]
+                    v = gy[l, q]
+                    acc[q] += gx[k, q] * (s00 * u + s01 * v) + gy[k, q] * (s10 * u + s11 * v)
         for comp in range(3):
-            out[i0, j0, comp] = np.sqrt(max(var[comp], 0.0))
+            var = 0.0
+            for img in range(n_img):
+                var += acc[3 * img + comp]
+            out[i0, j0, comp] = np.sqrt(max(var, 0.0))
 
 
 def strain_sigma(pairs: PairCovariances, strain, X_ref_mm: np.ndarray, blocks: list[tuple[np.ndarray, np.ndarray]],
