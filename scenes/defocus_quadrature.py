@@ -36,7 +36,7 @@ import numpy as np
 
 from scenes.camera import SensorSpec
 from scenes.coverage_raster import accumulate_flat
-from scenes.exact_render import (NotExactError, closed_surface, facing_distance_mm, project_outlines,
+from scenes.exact_render import (MAX_BLUR_PX, NotExactError, closed_surface, facing_distance_mm, project_outlines,
                                  sensor_corner_coordinates)
 from scenes.surfaces import TexturedSurface
 
@@ -465,6 +465,23 @@ def _affine_texel_map(surface: TexturedSurface, V_cam: np.ndarray, faces: np.nda
     return n, float(n @ p0), M, m
 
 
+def _ring_open(known: np.ndarray, P: np.ndarray) -> bool:
+    """True if an unknown pixel of the sensor's outermost ring lies in the bounding box of the projected points
+    ``P`` (..., 2) px: the only pixels of a sharp face group the in-focus pass leaves that this path can make."""
+    finite = P[np.all(np.isfinite(P), axis=-1)]
+    if finite.size == 0:
+        return False
+    H, W = known.shape
+    x0, y0 = np.floor(finite.min(axis=0) - 1).astype(int)
+    x1, y1 = np.ceil(finite.max(axis=0) + 1).astype(int)
+    x0, y0, x1, y1 = max(x0, 0), max(y0, 0), min(x1, W - 1), min(y1, H - 1)
+    if x1 < x0 or y1 < y0:
+        return False
+    ring = [known[0, x0:x1 + 1] if y0 == 0 else None, known[H - 1, x0:x1 + 1] if y1 == H - 1 else None,
+            known[y0:y1 + 1, 0] if x0 == 0 else None, known[y0:y1 + 1, W - 1] if x1 == W - 1 else None]
+    return any(side is not None and not side.all() for side in ring)
+
+
 def fill_defocused_faces(spec: SensorSpec, R_cam_from_world: np.ndarray, t_cam_from_world_mm: np.ndarray,
                          surfaces: list[TexturedSurface], image_grey: np.ndarray, known: np.ndarray, *,
                          exposure_grey: float = 255.0, tolerance_grey: float = DEFAULT_TOLERANCE_GREY
@@ -547,6 +564,11 @@ def fill_defocused_faces(spec: SensorSpec, R_cam_from_world: np.ndarray, t_cam_f
         # whole coverage on the sensor widened by the group's largest blur (its edges beyond the sensor count),
         # a ring of "not covered" around that window: the distance to the group's edge, px
         blur_g = defocus_blur_px(spec, R, t, Vw[np.unique(faces[g])])
+        if np.all(blur_g <= MAX_BLUR_PX) and not _ring_open(known, P):
+            # a sharp group: the in-focus pass made every pixel of it this path could (its edge and neighbour
+            # margins are wider) except on the sensor's outermost ring, where it cannot see the coverage beyond
+            # the edge; with no unknown ring pixel under the group, its coverage and distance passes find nothing
+            continue
         pad = int(min(np.nanmax(blur_g) if np.isfinite(blur_g).any() else 0.0, MAX_REACH_PX) * BLUR_MARGIN / 2
                   + EDGE_MARGIN_PX + 2)
         wide = accumulate_flat(xy_g, st_g, np.ones(len(g)), (H + 2 * pad, W + 2 * pad), (-pad, -pad))

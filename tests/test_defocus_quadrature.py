@@ -214,3 +214,38 @@ def test_the_float32_kernel_equals_a_float64_ray_tracing_of_the_same_rule_within
     ref = _reference_pixels(spec, surface, rows, cols, rule, 255.0)
     assert np.abs(255.0 * out - ref).max() <= 0.002
     assert np.ptp(ref) > 50                                    # the pixels see the speckle, not a flat grey
+
+
+def test_skipping_sharp_face_groups_changes_no_pixel(monkeypatch):
+    """A face group in focus (blur <= the in-focus limit) is not integrated unless an unknown pixel of the
+    sensor's outer ring lies under it (the in-focus pass cannot see coverage past the edge). The skip must change
+    nothing: the bending beam's views (sharp front face, reference and loaded) and the depth-of-field scene's
+    tilted camera (whose ring the quadrature fills: 1 800 px at this scale) give the same pixels with the skip
+    forced off."""
+    import scenes.defocus_quadrature as dq
+    from scenes.exact_render import render_view_in_focus
+    from workbench.experiments.bending.scenes import bending_truth
+    from workbench.experiments.depth_of_field.run import depth_of_field_scene
+    from workbench.rigs import get_rig
+
+    truth = bending_truth(get_rig("scheimpflug", 0.15), lens="thin", f_number=8.0, loads_N=(20.0, 2000.0))
+    texture = truth.specimen.texture()
+    cases = []
+    for k in (0, 1):
+        surfaces = truth.specimen.surfaces(*truth.pose, texture=texture, displacement_mm=truth.field(k))
+        for side in ("left", "right"):
+            cases.append((truth.specs[side], truth.camera_poses[side], surfaces))
+    dof = depth_of_field_scene(scale=0.2, seed=0)
+    plate = dof.plate.surface(dof.R_world_from_plate, dof.t_world_from_plate_mm, dof.plate.texture())
+    cases.append((dof.specs["scheimpflug"], (np.eye(3), np.zeros(3)), [plate]))
+    made = []
+    for spec, pose, surfaces in cases:
+        image, known, _ = render_view_in_focus(spec, *pose, surfaces, exposure_grey=255.0)
+        skipped = dq.fill_defocused_faces(spec, *pose, surfaces, image, known, exposure_grey=255.0)
+        with monkeypatch.context() as m:
+            m.setattr(dq, "_ring_open", lambda known, P: True)
+            full = dq.fill_defocused_faces(spec, *pose, surfaces, image, known, exposure_grey=255.0)
+        assert np.array_equal(skipped[1], full[1])
+        assert np.array_equal(skipped[0], full[0])
+        made.append(int(full[2]["defocus_pixels"]))
+    assert made[-1] > 1000       # the ring of the tilted camera: the case the exception is for
