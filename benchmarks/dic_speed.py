@@ -60,6 +60,50 @@ def _peak_mib() -> float:
 
 OPENCORR = {(1, 33): (16_700, 14_300), (2, 65): (2_600, 2_400)}
 
+# The arithmetic of IC-GN per subset pixel, counted from the kernels (measurement/dic/icgn.py, bspline.py) as
+# operations on the FMA ports (a multiply, an add or a fused multiply-add is one), in float32 lanes: a float64
+# operation fills half the lanes of a vector, so it counts 2.
+#   one iteration, per pixel: warp (4 FMA + 2 subtractions) 6; the B-spline weights in x and y: quintic
+#   2 x 29, cubic 2 x 13; the taps: quintic 36 + 6 row weights, cubic 16 + 4; the sums of the step and the
+#   ZNCC in float64: 13 x 2 = 26 (the same for first and second order: the second order's extra monomials are
+#   per row, not per pixel).
+#   the reference subset, once per point, per pixel (float64): first order 36 x 2, second order 48 x 2 (the
+#   Hessian's moments sum g_i g_j dx^a dy^b, a + b <= 2 or 4, row by row).
+ITERATION_OPS = {"biquintic": 6 + 58 + 42 + 26, "bicubic": 6 + 26 + 20 + 26}
+REFERENCE_OPS = {1: 72, 2: 96}
+
+
+@numba.njit(fastmath=True)
+def _fma_chains(acc, a, b, repeats):
+    for _ in range(repeats):
+        for j in range(acc.shape[0]):
+            acc[j] = acc[j] * a + b
+    return acc
+
+
+def fma_peak_per_core(repeats: int = 3_000_000) -> float:
+    """The machine's FMA limit, measured: float32 lane-FMAs per second on one core, many independent chains
+    (what LLVM makes of the same vector code the DIC kernels get), best of three."""
+    acc = np.ones(256, dtype=np.float32)
+    _fma_chains(acc, np.float32(0.999), np.float32(0.001), 10)
+    best = np.inf
+    for _ in range(3):
+        t = time.perf_counter()
+        _fma_chains(acc, np.float32(0.999), np.float32(0.001), repeats)
+        best = min(best, time.perf_counter() - t)
+    return acc.size * repeats / best
+
+
+def fma_fraction(result, seconds: float, threads: int, interpolation: str, peak: float) -> tuple[float, float]:
+    """Operations of one correlate run (every converged or failed point's reference subset and iterations) per
+    second per core, and their share of ``peak``."""
+    px = result.settings.subset_size ** 2
+    prepared = np.count_nonzero(result.iterations > 0)
+    ops = px * (prepared * REFERENCE_OPS[result.settings.order]
+                + int(result.iterations.sum()) * ITERATION_OPS[interpolation])
+    rate = ops / seconds / threads
+    return rate, rate / peak
+
 
 class _Field:
     """Translation + homogeneous strain + small rotation about the image centre (exact gradient for inversion)."""
@@ -124,6 +168,11 @@ def main() -> None:
     rows, cols = reference.shape
     field = _Field((cols / 2, rows / 2))
     print(f"DIC process: images read, peak memory {_peak_mib():.0f} MiB")
+    peak = fma_peak_per_core() if not args.compile_only else float("nan")
+    if not args.compile_only:
+        print(f"FMA limit, measured on one core: {peak / 1e9:.1f} G float32 lane-operations/s; per subset pixel: "
+              f"one iteration {ITERATION_OPS['biquintic']} (biquintic) / {ITERATION_OPS['bicubic']} (bicubic) "
+              f"operations, the reference subset {REFERENCE_OPS[1]} (first order) / {REFERENCE_OPS[2]} (second)")
     roi = (50, 50, cols - 50, rows - 50)
     for config in args.configs.split(","):
         order, subset = (int(v) for v in config.split(":"))
@@ -154,6 +203,10 @@ def main() -> None:
                   f"{n / np.median(icgn_s) / threads:>8,.0f} POI/s per core ({min(icgn_s):.2f} s; converged "
                   f"{ok.mean():.4f}, mean iterations {result.iterations[ok].mean():.2f}, RMS error "
                   f"{np.sqrt(np.mean(error ** 2)):.4f} px)")
+            rate, share = fma_fraction(result, min(icgn_s), threads, settings.interpolation, peak)
+            limit_poi = n / min(icgn_s) / threads / share
+            print(f"    IC-GN alone at {rate / 1e9:.2f} G operations/s per core = {100 * share:.1f} % of the FMA "
+                  f"limit (at the limit: {limit_poi:,.0f} POI/s per core)")
             ok = full.converged
             print(f"    whole pipeline  best {n / min(pipeline_s) / threads:>8,.0f}  median "
                   f"{n / np.median(pipeline_s) / threads:>8,.0f} POI/s per core ({min(pipeline_s):.2f} s; last run's "
