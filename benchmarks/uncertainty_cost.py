@@ -88,6 +88,11 @@ def main(argv=None) -> int:
         figures[f"shape_s_{key}"] = min(figures.get(f"shape_s_{key}", np.inf), shape_s)
         figures[f"state_s_{key}"] = min(figures.get(f"state_s_{key}", np.inf), state_s)
         figures["points"] = int(shape.x.size)
+    # the same state warm-started from a state of the same sequence (measure_state's previous=): no feature matching
+    warm_s, warm = best_of(lambda: measure_state(*cams, shape, im["left_ref"], im["left_def"], im["right_def"], s,
+                                                 previous=state), args.repeats)
+    figures["state_s_warm"] = warm_s
+    figures["warm_seeded_by"] = warm.seeded_by
     grid = shape.grid
 
     def on_grid(v):
@@ -112,6 +117,8 @@ def main(argv=None) -> int:
              f"uncertainty ({figures['shape_overhead_percent']:+.1f} %)",
              f"state: {figures['state_s_without']:.2f} s without, {figures['state_s_with']:.2f} s with "
              f"({figures['state_overhead_percent']:+.1f} %; goal <= +10 %)",
+             f"state warm-started from the state before it (seeds {figures['warm_seeded_by']}): "
+             f"{figures['state_s_warm']:.2f} s with the uncertainty",
              f"strain window 9: {strain_s:.2f} s; its sigma: pair covariances {pairs_s:.2f} s once per reference, "
              f"{sigma_s:.2f} s per state"]
     print("\n".join(lines))

@@ -67,12 +67,8 @@ def test_reference_shape_lies_on_the_plate(renders):
     assert np.median(shape.residual_px[shape.valid]) < 0.05
 
 
-def test_rigid_translation_is_measured(renders):
-    images, _, _ = renders
-    shape = reference_shape(RIG.left, RIG.right, RIG.R_right_from_left, RIG.T_right_from_left_mm,
-                            images["left_ref"], images["right_ref"], SETTINGS, roi=_roi())
-    state = measure_state(RIG.left, RIG.right, RIG.R_right_from_left, RIG.T_right_from_left_mm, shape,
-                          images["left_ref"], images["left_def"], images["right_def"], SETTINGS)
+def test_rigid_translation_is_measured(measured):
+    _, _, state = measured
     ok = state.valid
     assert ok.mean() > 0.95, {s: int((state.status == s).sum()) for s in np.unique(state.status)}
     error_um = 1e3 * (state.U_mm[ok] - MOVE_MM)
