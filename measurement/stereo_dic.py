@@ -407,7 +407,7 @@ class StereoState:
     X_mm, U_mm : ndarray, shape (N, 3)
         Deformed position and displacement ``X_def - X_ref`` in the left camera frame, mm.
     D_mm : ndarray, shape (N,)
-        Displacement magnitude |U|, mm.
+        Displacement magnitude ``|U|``, mm.
     residual_px : ndarray, shape (N,)
         Triangulation residual of the deformed state, px.
     zncc : ndarray, shape (N,)
