@@ -42,17 +42,12 @@ def main(argv=None) -> int:
     if args.states < 2:
         raise SystemExit("--states must be at least 2")
 
-    from uncertainty_cost import render
+    from uncertainty_cost import scene
 
     from measurement.stereo_dic import STEREO_DIC_SETTINGS, measure_state, reference_shape
     from measurement.stereo_io import write_state_csv
 
-    t0 = time.perf_counter()
-    rig, im = render(args.scale)
-    print(f"rendered at scale {args.scale} in {time.perf_counter() - t0:.0f} s")
-    cams = (rig.left, rig.right, rig.R_right_from_left, rig.T_right_from_left_mm)
-    w, h = rig.left.width, rig.left.height
-    roi = (int(0.3 * w), int(0.3 * h), int(0.7 * w), int(0.7 * h))
+    rig, im, cams, roi = scene(args.scale)
     shape = reference_shape(*cams, im["left_ref"], im["right_ref"], STEREO_DIC_SETTINGS, roi=roi)
     base = {"after reference shape": _status_mib("VmRSS")}
     print(f"{shape.x.size} points; resident after the reference shape {base['after reference shape']:.0f} MiB")
