@@ -121,11 +121,6 @@ def state_columns(shape: StereoShape, state: StereoState | None = None) -> list[
             *(("g", v) for v in sig.values()), ("s", ["" if v < 0 else str(int(v)) for v in flag.tolist()])]
 
 
-def state_rows(shape: StereoShape, state: StereoState | None = None) -> list[list[str]]:
-    """The rows of :func:`write_state_csv` (columns :data:`CSV_COLUMNS`), as text, one per point."""
-    return [line.split(",") for line in text_lines(state_columns(shape, state))]
-
-
 def write_state_csv(path: str | Path, shape: StereoShape, state: StereoState | None = None) -> Path:
     """Per-point CSV: left reference pixel (x, y), position X, Y, Z and displacement U, V, W, D (left camera
     frame, mm), ZNCC, triangulation residual (px), status, and the uncertainty (:data:`SIGMA_COLUMNS`, µm).
