@@ -20,7 +20,8 @@ and emitter textures as :func:`scenes.render.render_view`, but its own sample lo
    stratification gives the realised MC variance: ``mc_rms_grey`` in the result is measured, not predicted.
 
 Stratification: sample ``k`` of an ``s x s`` batch jitters inside film stratum ``(k mod s, k div s)``; the
-thin lens' aperture sample is stratified too, through a per-pixel permutation of the strata. Random numbers
+thin lens' aperture sample is stratified too, through a per-pixel random permutation of the strata (a hash
+permutation, :func:`_permute`), independent of the film strata. Random numbers
 are TEA hashes of (pixel, sample, seed), so a pixel's value does not depend on which pixels are rendered
 with it or how they are chunked: same seed, same image.
 
@@ -29,6 +30,7 @@ stratification and reuses it for every view, state and seed.
 """
 from __future__ import annotations
 
+import math
 import time
 import warnings
 from dataclasses import asdict, dataclass, field
@@ -106,6 +108,46 @@ def _uniform_pair(a, b):
     return mi.Float(h0 >> 8) * (scale * 256.0), mi.Float(h1 >> 8) * (scale * 256.0)
 
 
+#: Cycle-walking rounds of :func:`_permute` before a lane takes its hash modulo n (each round ends a lane
+#: with probability > 1/2: 2^-16 or fewer lanes are left, and their value is still uniform, only not a stratum of
+#: their own).
+PERMUTE_ROUNDS = 16
+
+
+def _permute(i, n: int, key, offset):
+    """A random permutation of ``0 .. n - 1`` per ``key`` (Kensler 2013, "Correlated multi-jittered sampling",
+    Pixar tech memo 13-01: a hash that is a bijection on the next power of two, walked until it lands below n),
+    then turned by ``offset mod n`` so that every output is uniform whatever the walk did. ``i``, ``key``,
+    ``offset``: UInt32 arrays; ``n``: a literal."""
+    w = n - 1
+    for b in (1, 2, 4, 8, 16):
+        w |= w >> b
+    x = mi.UInt32(i)
+    done = x < 0                                              # all False
+    for _ in range(PERMUTE_ROUNDS):
+        y = x ^ key
+        y *= 0xE170893D
+        y ^= key >> 16
+        y ^= (y & w) >> 4
+        y ^= key >> 8
+        y *= 0x0929EB3F
+        y ^= key >> 23
+        y ^= (y & w) >> 1
+        y *= 1 | key >> 27
+        y *= 0x6935FA69
+        y ^= (y & w) >> 11
+        y *= 0x74DCB303
+        y ^= (y & w) >> 2
+        y *= 0x9E501CC3
+        y ^= (y & w) >> 2
+        y *= 0xC860A3DF
+        y &= w
+        y ^= y >> 5
+        x = dr.select(done, x, y)
+        done = x < n
+    return (x % n + offset % n) % n
+
+
 def _trace(scene, sensor, pixels: np.ndarray, width: int, side: int, seed: int, thin: bool,
            spread: bool = False):
     """Mean radiance of one stratified batch of ``side**2`` samples in each of the flat ``pixels``; with
@@ -131,9 +173,11 @@ def _trace(scene, sensor, pixels: np.ndarray, width: int, side: int, seed: int, 
         film = sensor.film().crop_size()     # the sensor's film is the full sensor (no crop window)
         position = mi.Point2f(px * (1.0 / film[0]), py * (1.0 / film[1]))
         if thin:
-            # aperture strata in a per-pixel permuted order: stratified marginals, uncorrelated with the film's
-            shift = mi.sample_tea_32(pix, seed_o ^ 0x5BD1E995, 4)[0] % spp
-            q = (k * (2 * (spp // 3) + 1) + shift) % spp
+            # aperture strata in a per-pixel random permuted order: stratified marginals, uncorrelated with the
+            # film's (a lattice q = a k + b mod n is not: it ties each film row to a few aperture rows, and a
+            # blurred edge's pixel then scattered by +-20 grey at 4096 spp, tests/test_adaptive_render.py)
+            key_p, key_o = mi.sample_tea_32(pix, seed_o ^ 0x5BD1E995, 4)
+            q = _permute(k, spp, key_p, key_o)
             vx, vy = _uniform_pair(pix, key ^ 1)
             ax = (mi.Float(q % side) + vx) * inv
             ay = (mi.Float(q // side) + vy) * inv
@@ -358,19 +402,44 @@ def render_views_adaptive(views: list[tuple[SensorSpec, tuple[np.ndarray, np.nda
         rng = np.random.default_rng([view_seed & 0xFFFFFFFF, 0xC0FFEE])
         check = lit & (rng.random(len(pixels)) < settings.check_fraction)
         check_var = np.zeros(len(pixels))
-        for j, side in [(-1, ps)] + list(enumerate(settings.sides)):
-            sel = np.flatnonzero(level == j)
-            if len(sel) == 0:
-                continue
-            if j >= 0:
-                value[sel] = _trace(scene, sensors[i], pixels[sel], spec.width, side, _stream(view_seed, 2 * side), thin)
-                spp[sel] = side * side
-                traced += side * side * len(sel)
-            chk = sel[check[sel]]
-            if len(chk):
-                again = _trace(scene, sensors[i], pixels[chk], spec.width, side, _stream(view_seed, 2 * side + 1), thin)
-                check_var[chk] = (again - value[chk]) ** 2 / 2.0          # variance of one batch's mean
-                traced += side * side * len(chk)
+
+        def trace_levels(level, sides, salt):
+            done = 0
+            for j, side in [(-1, ps)] + list(enumerate(sides)):
+                sel = np.flatnonzero(level == j)
+                if len(sel) == 0:
+                    continue
+                if j >= 0:
+                    value[sel] = _trace(scene, sensors[i], pixels[sel], spec.width, side,
+                                        _stream(view_seed, 2 * side + salt), thin)
+                    spp[sel] = side * side
+                    done += side * side * len(sel)
+                chk = sel[check[sel]]
+                if len(chk):
+                    again = _trace(scene, sensors[i], pixels[chk], spec.width, side,
+                                   _stream(view_seed, 2 * side + 1 + salt), thin)
+                    check_var[chk] = (again - value[chk]) ** 2 / 2.0          # variance of one batch's mean
+                    done += side * side * len(chk)
+            return done
+
+        traced += trace_levels(level, settings.sides, 0)
+        # Measured, not assumed: where the check pixels' noise exceeds the error model's prediction (a pilot whose
+        # samples all agreed on a blurred silhouette under-states its spread), the model's scale is corrected by
+        # their ratio and the pixels whose stratification then rises are traced again, up to REFINE_SIDES
+        n_check = int(check.sum())
+        if n_check >= MIN_CHECK_PIXELS:
+            measured = math.sqrt(check_var[check].mean())
+            model = math.sqrt(np.mean((kappa * sigma[check] * np.sqrt(np.maximum(spp[check], 1)) ** -p) ** 2))
+            if measured > MISSED_RATIO * target and model > 0:
+                sides2 = tuple(settings.sides) + tuple(s for s in REFINE_SIDES if s > max(settings.sides))
+                level2, worst2 = _allocate(sigma, lit, ps, sides2, target, kappa * measured / model, p)
+                grid2 = np.array([ps] + list(sides2))
+                rise = (grid2[level2 + 1] ** 2 > spp) & lit
+                cost = int(np.sum(grid2[level2[rise] + 1] ** 2)) * (1.0 + settings.check_fraction)
+                if cost <= REFINE_BUDGET_SPP * len(pixels):
+                    kappa *= measured / model
+                    worst = worst2
+                    traced += trace_levels(np.where(rise, level2, -2), sides2, 4096)
         predicted = np.where(spp > 0, kappa * sigma * np.sqrt(np.maximum(spp, 1)) ** -p, 0.0)   # 0: a known pixel
         image = np.zeros((spec.height, spec.width), dtype=np.float32)
         image[y0:y0 + h, x0:x0 + w] = (value * exposure_grey).reshape(h, w).astype(np.float32)
@@ -408,6 +477,10 @@ MISSED_RATIO = 1.25
 
 #: Check pixels enough for their measured noise to overrule the error model's prediction.
 MIN_CHECK_PIXELS = 200
+#: Finer stratifications a second, corrected allocation may add (side; side^2 samples per pixel).
+REFINE_SIDES = (32, 45, 64)
+#: Largest cost of that second allocation, samples per pixel of the crop (beyond it the miss is reported).
+REFINE_BUDGET_SPP = 32
 
 
 def _target_missed(mc: dict) -> str | None:
