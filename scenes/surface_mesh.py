@@ -26,6 +26,7 @@ import functools
 import warnings
 from dataclasses import dataclass, replace
 
+import numba
 import numpy as np
 
 #: Face families: name -> (reference node coordinates (n, 2), monomial exponents (n, 2), domain, corners).
@@ -73,6 +74,60 @@ class FaceElement:
         N = (f[0] * f[1]) @ C
         dN = np.stack([(g[0] * f[1]) @ C, (f[0] * g[1]) @ C], axis=2)
         return N, dN
+
+
+@numba.njit(cache=True, inline="always")
+def _monomials(exponents, s, t, m, ms, mt):
+    """The monomials ``s^a t^b`` of a face family at one point and their (s, t) derivatives (powers <= 2)."""
+    for j in range(exponents.shape[0]):
+        es, et = exponents[j, 0], exponents[j, 1]
+        ps = 1.0 if es == 0 else (s if es == 1 else s * s)
+        pt = 1.0 if et == 0 else (t if et == 1 else t * t)
+        m[j] = ps * pt
+        ms[j] = 0.0 if es == 0 else (pt if es == 1 else 2.0 * s * pt)
+        mt[j] = 0.0 if et == 0 else (ps if et == 1 else 2.0 * t * ps)
+
+
+@numba.njit(cache=True, parallel=True)
+def _interpolate(st, sel, conn, V, exponents, C, out):
+    """``out[sel[i]] = sum_a N_a(st[sel[i]]) V[conn[i, a]]``, the shape functions ``N = m(s, t) @ C`` of
+    :meth:`FaceElement.shape` formed per point (no (P, n) arrays)."""
+    n, d = C.shape[0], V.shape[1]
+    for i in numba.prange(len(sel)):
+        p = sel[i]
+        m, ms, mt = np.empty(n), np.empty(n), np.empty(n)
+        _monomials(exponents, st[p, 0], st[p, 1], m, ms, mt)
+        for c in range(d):
+            out[p, c] = 0.0
+        for a in range(n):
+            N = 0.0
+            for j in range(n):
+                N += m[j] * C[j, a]
+            for c in range(d):
+                out[p, c] += N * V[conn[i, a], c]
+
+
+@numba.njit(cache=True, parallel=True)
+def _interpolate_derivatives(st, sel, conn, V, exponents, C, out):
+    """``out[sel[i]] = sum_a dN_a/d(s, t) V[conn[i, a]]``, (M, d, 2), as :func:`_interpolate`."""
+    n, d = C.shape[0], V.shape[1]
+    for i in numba.prange(len(sel)):
+        p = sel[i]
+        m, ms, mt = np.empty(n), np.empty(n), np.empty(n)
+        _monomials(exponents, st[p, 0], st[p, 1], m, ms, mt)
+        for c in range(d):
+            out[p, c, 0] = 0.0
+            out[p, c, 1] = 0.0
+        for a in range(n):
+            gs = 0.0
+            gt = 0.0
+            for j in range(n):
+                gs += ms[j] * C[j, a]
+                gt += mt[j] * C[j, a]
+            for c in range(d):
+                v = V[conn[i, a], c]
+                out[p, c, 0] += gs * v
+                out[p, c, 1] += gt * v
 
 
 FACE_ELEMENTS = {f.name: f for f in [
@@ -334,8 +389,8 @@ class SurfaceMesh:
         V = np.asarray(nodal_mm, dtype=float)
         out = np.empty((len(face), V.shape[1]))
         for k, sel, conn in self._face_nodes(face):
-            N, _ = FACE_ELEMENTS[self.families[k]].shape(st[sel])
-            out[sel] = np.einsum("ma,mai->mi", N, V[conn])
+            el = FACE_ELEMENTS[self.families[k]]
+            _interpolate(st, sel, conn, V, el.exponents.astype(np.int64), el.coefficients, out)
         return out
 
     def tangents(self, face, st, nodal_mm) -> np.ndarray:
@@ -345,8 +400,8 @@ class SurfaceMesh:
         V = np.asarray(nodal_mm, dtype=float)
         out = np.empty((len(face), 3, 2))
         for k, sel, conn in self._face_nodes(face):
-            _, dN = FACE_ELEMENTS[self.families[k]].shape(st[sel])
-            out[sel] = np.einsum("mad,mai->mid", dN, V[conn])
+            el = FACE_ELEMENTS[self.families[k]]
+            _interpolate_derivatives(st, sel, conn, V, el.exponents.astype(np.int64), el.coefficients, out)
         return out
 
     def positions(self, face, st, displacement_mm=None) -> np.ndarray:

@@ -69,6 +69,35 @@ def test_face_shape_functions_interpolate_their_polynomials_exactly(name):
         assert np.allclose(dN[:, :, 0] @ nodal, ds, atol=1e-7, rtol=0)
 
 
+@pytest.mark.parametrize("name", list(FACE_ELEMENTS))
+def test_surface_evaluation_reproduces_the_face_polynomials(name):
+    """``SurfaceMesh.evaluate`` / ``tangents`` (a compiled kernel forming the shape functions per point) give a face's
+    polynomials and their (s, t) derivatives exactly (1e-12), nodal values taken from the polynomials; a kernel
+    with a wrong monomial, coefficient or derivative would miss them."""
+    el = FACE_ELEMENTS[name]
+    n = len(el.nodes)
+    rng = np.random.default_rng(4)
+    points = np.column_stack([el.nodes, np.zeros(n)]) + 0.01 * rng.standard_normal((n, 3))
+    mesh = SurfaceMesh(points, {name: np.arange(n)[None, :]})
+    st = rng.random((40, 2)) * (0.5 if el.kind == "triangle" else 1.0)
+    face = np.zeros(len(st), dtype=np.int64)
+
+    def f(s, t):                                                       # three components, in the face's space
+        q = s * t if el.kind == "square" or el.order == 2 else 0.0 * s
+        sq = (s * s - 0.5 * t * t) if el.order == 2 else 0.0 * s
+        return np.stack([2 + 3 * s - t, q, sq + 0.25 * s], axis=-1)
+
+    def df(s, t):
+        q = (t, s) if el.kind == "square" or el.order == 2 else (0.0 * s, 0.0 * s)
+        sq = (2 * s, -t) if el.order == 2 else (0.0 * s, 0.0 * s)
+        return np.stack([np.stack([3 + 0 * s, -1 + 0 * s], -1), np.stack(q, -1),
+                         np.stack([sq[0] + 0.25, sq[1]], -1)], axis=1)
+
+    nodal = f(el.nodes[:, 0], el.nodes[:, 1])
+    assert np.allclose(mesh.evaluate(face, st, nodal), f(st[:, 0], st[:, 1]), atol=1e-12, rtol=0)
+    assert np.allclose(mesh.tangents(face, st, nodal), df(st[:, 0], st[:, 1]), atol=1e-12, rtol=0)
+
+
 @pytest.mark.parametrize("kind", ["tetra", "tetra10", "hexahedron", "hexahedron20", "hexahedron27", "wedge"])
 def test_outer_surface_of_each_volume_family_is_closed_and_outward(kind):
     """The outer surface, tessellated, is watertight and encloses the box's 1000 mm^3 with outward normals
