@@ -22,8 +22,12 @@ measured error are returned. The whole renderer is checked against converged Mit
 Which pixels: a ray of the pixel's bundle meets the face at a point whose pinhole image lies within the blur
 radius there; a pixel is made here when every pixel within its blur radius (+ :data:`EDGE_MARGIN_PX`) is wholly
 covered by the flat face group (exact coverage, :mod:`scenes.coverage_raster`) and no other face's footprint,
-widened by that face's own blur, reaches it. What is left (blurred silhouettes, curved or slanted faces, prints)
-stays for Mitsuba's adaptive renderer (:func:`scenes.adaptive.render_views_auto`).
+widened by that face's own blur, reaches it. A face that is smooth but not flat (a deformed specimen, a curved
+shell: a patch of triangles joined across edges bent by less than :data:`scenes.defocus_mesh.CREASE_DEG`, no flat
+group of which holds :data:`PLANAR_SHARE` of its area) is integrated with the same rules by walking each node's
+ray across its triangles (:mod:`scenes.defocus_mesh`); there the pixel must be covered by exactly one layer of
+the patch. What is left (blurred silhouettes, prints) stays for Mitsuba's adaptive renderer
+(:func:`scenes.adaptive.render_views_auto`).
 """
 from __future__ import annotations
 
@@ -67,6 +71,9 @@ MAX_REACH_PX = 200.0
 MAX_GROUPS = 8
 #: Flat face groups whose pinhole image is smaller than this are not tried, px^2 (a 20 px square).
 MIN_GROUP_AREA_PX = 400.0
+#: A smooth patch is integrated plane by plane where its largest flat group holds at least this share of its
+#: area (a plate, a box's face), by walking its triangles (:mod:`scenes.defocus_mesh`) otherwise.
+PLANAR_SHARE = 0.5
 #: Side of the pixel tiles integrated in turn, px.
 TILE_PX = 32
 #: Texture points and dense-rule density (nodes per texture detail length) of a bin's calibration.
@@ -440,6 +447,12 @@ def _face_groups(V_cam: np.ndarray, faces: np.ndarray, candidates: np.ndarray) -
     return [idx[label == g] for g in order[:MAX_GROUPS]]
 
 
+def _area_mm2(V: np.ndarray, faces: np.ndarray) -> float:
+    """Total area of triangles ``faces`` (K, 3) of vertices ``V``, mm^2."""
+    P = V[faces]
+    return 0.5 * float(np.linalg.norm(np.cross(P[:, 1] - P[:, 0], P[:, 2] - P[:, 0]), axis=1).sum())
+
+
 def _affine_texel_map(surface: TexturedSurface, V_cam: np.ndarray, faces: np.ndarray):
     """Plane (unit normal n, offset d: n . X = d) and affine map texel = M X + m of a flat face group (camera
     frame), or None when its texture coordinates are not one affine map of the plane."""
@@ -486,7 +499,7 @@ def fill_defocused_faces(spec: SensorSpec, R_cam_from_world: np.ndarray, t_cam_f
                          surfaces: list[TexturedSurface], image_grey: np.ndarray, known: np.ndarray, *,
                          exposure_grey: float = 255.0, tolerance_grey: float = DEFAULT_TOLERANCE_GREY
                          ) -> tuple[np.ndarray, np.ndarray, dict]:
-    """Make the unknown pixels of a thin-lens view that flat faces fill wholly (module notes).
+    """Make the unknown pixels of a thin-lens view that flat faces or smooth patches fill wholly (module notes).
 
     Parameters
     ----------
@@ -504,16 +517,20 @@ def fill_defocused_faces(spec: SensorSpec, R_cam_from_world: np.ndarray, t_cam_f
     known : (height, width) bool, ``known`` or made here
     info : ``defocus_pixels`` (made here), ``defocus_nodes`` (their mean rule size), ``defocus_bins`` (per blur
         bin: upper blur radius px, rule (n_p, n_r, n_t), nodes, measured error grey, pixels), ``defocus_groups``
-        (flat face groups used) and ``defocus_skipped`` (why a group was not used)
+        (flat face groups used), ``defocus_patches`` (smooth patches walked) and ``defocus_skipped`` (why a group
+        or pixel was not used)
     """
     image = np.array(image_grey, dtype=np.float32, copy=True)
     known = np.array(known, dtype=bool, copy=True)
     info = {"defocus_pixels": 0, "defocus_nodes": 0.0, "defocus_bins": [], "defocus_groups": 0,
-            "defocus_skipped": []}
+            "defocus_patches": 0, "defocus_skipped": []}
     if spec.lens != "thin" or known.all() or not surfaces:
         return image, known, info
     from scipy.ndimage import distance_transform_edt, maximum_filter
 
+    from scenes.defocus_mesh import blur_and_scale as mesh_blur_and_scale
+    from scenes.defocus_mesh import edge_neighbours, smooth_components, triangle_table
+    from scenes.defocus_mesh import integrate_pixels as mesh_integrate_pixels
     from scenes.truth import defocus_blur_px, project_points, tilted_sensor_axes
 
     R = np.asarray(R_cam_from_world, dtype=float)
@@ -530,16 +547,24 @@ def fill_defocused_faces(spec: SensorSpec, R_cam_from_world: np.ndarray, t_cam_f
         if surface.filter != "bilinear":
             continue
         V_cam = np.asarray(surface.vertices_mm, dtype=float) @ R.T + t
-        # a face seen from its emitting side by the whole aperture
-        for g in _face_groups(V_cam, faces, dist > A_mm):
-            groups.append((si, g, V_cam))
+        # faces seen from their emitting side by the whole aperture, in smooth patches (no sharp crease within):
+        # a patch that is mostly one plane is integrated plane by plane, any other by walking its triangles
+        idx = np.flatnonzero(dist > A_mm)
+        for comp in smooth_components(faces[idx], edge_neighbours(faces[idx], V_cam)):
+            members = np.zeros(len(faces), dtype=bool)
+            members[idx[comp]] = True
+            planes = _face_groups(V_cam, faces, members)
+            if _area_mm2(V_cam, faces[planes[0]]) >= PLANAR_SHARE * _area_mm2(V_cam, faces[idx[comp]]):
+                groups += [("plane", si, g, V_cam) for g in planes]
+            else:
+                groups.append(("mesh", si, idx[comp], V_cam))
     xy = sensor_corner_coordinates(spec)
     axes = tilted_sensor_axes(spec.alpha_deg, spec.beta_deg)
     optics = (spec.cx, spec.cy, spec.fx, spec.fy, axes[2, 0], axes[2, 1], spec.image_distance_mm,
               spec.focal_length_mm)
     total_nodes = 0.0
     small = 0
-    for si, g, V_cam in groups:
+    for kind, si, g, V_cam in groups:
         surface = surfaces[si]
         faces = np.asarray(surface.faces, dtype=int)
         # a deformed mesh's "flat groups" are single triangles a few px wide: none holds a blur circle, and each
@@ -550,11 +575,12 @@ def fill_defocused_faces(spec: SensorSpec, R_cam_from_world: np.ndarray, t_cam_f
         if 0.5 * np.nansum(np.abs(e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0])) < MIN_GROUP_AREA_PX:
             small += 1
             continue
-        plane = _affine_texel_map(surface, V_cam, faces[g])
-        if plane is None:
-            info["defocus_skipped"].append(f"surface {si}: its flat faces' texture is not one affine map")
-            continue
-        n, d, M, m = plane
+        if kind == "plane":
+            plane = _affine_texel_map(surface, V_cam, faces[g])
+            if plane is None:
+                info["defocus_skipped"].append(f"surface {si}: its flat faces' texture is not one affine map")
+                continue
+            n, d, M, m = plane
         try:
             Vw = np.asarray(surface.vertices_mm, dtype=float)
             xy_g, st_g = project_outlines(spec, R, t, list(Vw[faces[g]]), 1e-3)
@@ -572,7 +598,8 @@ def fill_defocused_faces(spec: SensorSpec, R_cam_from_world: np.ndarray, t_cam_f
         pad = int(min(np.nanmax(blur_g) if np.isfinite(blur_g).any() else 0.0, MAX_REACH_PX) * BLUR_MARGIN / 2
                   + EDGE_MARGIN_PX + 2)
         wide = accumulate_flat(xy_g, st_g, np.ones(len(g)), (H + 2 * pad, W + 2 * pad), (-pad, -pad))
-        wide = np.pad(wide >= 1.0 - 1e-6, 1, constant_values=False)
+        # covered once: a curved patch folding over itself (two layers) is not integrated there
+        wide = np.pad((wide >= 1.0 - 1e-6) & (wide <= 1.0 + 1e-6), 1, constant_values=False)
         edge_all = distance_transform_edt(wide)[pad + 1:pad + 1 + H, pad + 1:pad + 1 + W]
         whole = edge_all > 0
         # everything else that is seen: the other faces, dilated by their own blur
@@ -607,27 +634,45 @@ def fill_defocused_faces(spec: SensorSpec, R_cam_from_world: np.ndarray, t_cam_f
         todo = whole & ~known & ~near_other
         if not todo.any():
             continue
-        r_idx, c_idx = np.nonzero(todo)
-        r0, r1, c0, c1 = int(r_idx.min()), int(r_idx.max()) + 1, int(c_idx.min()), int(c_idx.max()) + 1
-        rho, scale, jac = _blur_and_scale(xy, r0, r1, c0, c1, *optics, A_mm, n, d, M, m)
-        edge = edge_all[r0:r1, c0:c1]
-        ok = (todo[r0:r1, c0:c1] & (edge > BLUR_MARGIN * rho + EDGE_MARGIN_PX) & np.isfinite(rho)
-              & np.isfinite(scale))
-        if not ok.any():
-            continue
-        rr, cc = _tile_order(ok)
-        rho_ok = rho[rr, cc]
-        scale_ok = scale[rr, cc]
+        tex = np.ascontiguousarray(surface.texture, dtype=np.float32)      # as Mitsuba holds it
+        if kind == "plane":
+            r_idx, c_idx = np.nonzero(todo)
+            r0, r1, c0, c1 = int(r_idx.min()), int(r_idx.max()) + 1, int(c_idx.min()), int(c_idx.max()) + 1
+            rho, scale, jac = _blur_and_scale(xy, r0, r1, c0, c1, *optics, A_mm, n, d, M, m)
+            edge = edge_all[r0:r1, c0:c1]
+            ok = (todo[r0:r1, c0:c1] & (edge > BLUR_MARGIN * rho + EDGE_MARGIN_PX) & np.isfinite(rho)
+                  & np.isfinite(scale))
+            if not ok.any():
+                continue
+            rr, cc = _tile_order(ok)
+            rho_ok, scale_ok, jac_ok = rho[rr, cc], scale[rr, cc], jac[rr, cc]
+            rr, cc = rr + r0, cc + c0
+        else:
+            from scenes.ray_surface import cast_rays
+
+            tab = triangle_table(V_cam, faces[g], surface.uv, tex.shape)
+            hits = cast_rays(spec, R, t, Vw, faces[g])
+            rr, cc = _tile_order(todo & (hits.triangle >= 0) & hits.front)
+            if not len(rr):
+                continue
+            seeds = hits.triangle[rr, cc]
+            rho_ok, scale_ok, jac_ok = mesh_blur_and_scale(xy, rr.astype(np.int64), cc.astype(np.int64), seeds,
+                                                           tab, *optics, A_mm)
+            keep = (edge_all[rr, cc] > BLUR_MARGIN * rho_ok + EDGE_MARGIN_PX) & np.isfinite(rho_ok) \
+                & np.isfinite(scale_ok)
+            if not keep.any():
+                continue
+            rr, cc, seeds, rho_ok, scale_ok, jac_ok = (a[keep] for a in (rr, cc, seeds, rho_ok, scale_ok, jac_ok))
         edges = [FIRST_BIN_PX]
         while edges[-1] < rho_ok.max():
             edges.append(edges[-1] * BIN_GROWTH)
         bins = np.searchsorted(np.array(edges), rho_ok)
         rules, starts = [], [0]
-        tex = np.ascontiguousarray(surface.texture, dtype=np.float32)      # as Mitsuba holds it
         detail_texels = texture_detail_texels(tex)
         fingerprint = texture_fingerprint(tex)
         previous = 0
         counts, finest = _bin_members(bins, scale_ok, len(edges))
+        bin_info = []
         for b, edge_px in enumerate(edges):
             count = int(counts[b])
             if count == 0:
@@ -635,28 +680,41 @@ def fill_defocused_faces(spec: SensorSpec, R_cam_from_world: np.ndarray, t_cam_f
                 starts.append(starts[-1])
                 continue
             # the bin's rule is measured where its texture is finest on the sensor
-            worst = finest[b]
-            J = jac[rr[worst], cc[worst]].astype(np.float64).reshape(2, 2)
+            J = jac_ok[finest[b]].astype(np.float64).reshape(2, 2)
             choice = choose_rule(tex, J, edge_px, exposure_grey, tolerance_grey, seed=b,
                                  detail_texels=detail_texels, fingerprint=fingerprint, at_least=previous)
             previous = choice["nodes"]
             rule = thin_lens_rule(*choice["rule"])
             rules.append(rule)
             starts.append(starts[-1] + len(rule))
-            info["defocus_bins"].append({"rho_px": edge_px, "rule": list(choice["rule"]), "nodes": choice["nodes"],
-                                         "error_grey": choice["error_grey"], "pixels": count})
-            total_nodes += count * choice["nodes"]
-        # twice as many texels as any ray of these pixels lands from its pixel's chief ray (the texel scale
-        # changes across a blur circle on an oblique face)
-        margin = int(math.ceil(2.0 * float(scale_ok.max()) * (float(rho_ok.max()) + 2.0))) + 4
+            bin_info.append({"rho_px": edge_px, "rule": list(choice["rule"]), "nodes": choice["nodes"],
+                             "error_grey": choice["error_grey"], "pixels": count, "bin": b})
         out = np.empty(len(rr))
-        _integrate_pixels((rr + r0).astype(np.int64), (cc + c0).astype(np.int64), bins.astype(np.int64),
-                          np.array(starts, dtype=np.int64), _node_table(np.concatenate(rules), A_mm, n, M), xy,
-                          *optics, n, d, M, m, margin, tex, out)
-        image[rr + r0, cc + c0] = (float(exposure_grey) * out).astype(np.float32)
-        known[rr + r0, cc + c0] = True
+        if kind == "plane":
+            # twice as many texels as any ray of these pixels lands from its pixel's chief ray (the texel scale
+            # changes across a blur circle on an oblique face)
+            margin = int(math.ceil(2.0 * float(scale_ok.max()) * (float(rho_ok.max()) + 2.0))) + 4
+            _integrate_pixels(rr.astype(np.int64), cc.astype(np.int64), bins.astype(np.int64),
+                              np.array(starts, dtype=np.int64), _node_table(np.concatenate(rules), A_mm, n, M), xy,
+                              *optics, n, d, M, m, margin, tex, out)
+        else:
+            mesh_integrate_pixels(rr.astype(np.int64), cc.astype(np.int64), seeds, bins.astype(np.int64),
+                                  np.array(starts, dtype=np.int64), np.ascontiguousarray(np.concatenate(rules)),
+                                  A_mm, xy, *optics, tab, edge_neighbours(faces[g], V_cam), tex, out)
+        made = np.isfinite(out)
+        if not made.all():
+            info["defocus_skipped"].append(f"surface {si}: {int((~made).sum())} pixel(s) whose rays left the "
+                                           "smooth patch (left for Mitsuba)")
+        per_bin = np.bincount(bins[made], minlength=len(edges))
+        for row in bin_info:
+            row["pixels"] = int(per_bin[row.pop("bin")])
+            info["defocus_bins"].append(row)
+            total_nodes += row["pixels"] * row["nodes"]
+        rr, cc = rr[made], cc[made]
+        image[rr, cc] = (float(exposure_grey) * out[made]).astype(np.float32)
+        known[rr, cc] = True
         info["defocus_pixels"] += int(len(rr))
-        info["defocus_groups"] += 1
+        info["defocus_groups" if kind == "plane" else "defocus_patches"] += 1
     if small:
         info["defocus_skipped"].append(f"{small} flat face group(s) under {MIN_GROUP_AREA_PX:g} px^2 in the view")
     if info["defocus_pixels"]:
