@@ -118,20 +118,20 @@ def thin_lens_rule(n_pixel: int, n_rings: int, n_angles: int) -> np.ndarray:
     s, wr = _gauss_legendre_unit(n_rings)
     per_ring = _ring_angles(n_rings, n_angles)
     m = n_pixel * n_pixel
-    out = np.empty((rule_size(n_pixel, n_rings, n_angles), 5))
-    i = 0
-    for jy in range(n_pixel):
-        for jx in range(n_pixel):
-            j = jy * n_pixel + jx
-            for k in range(n_rings):
-                na = per_ring[k]
-                theta = 2 * np.pi * (np.arange(na) + 0.5 * (k % 2) + j / m) / na
-                r = math.sqrt(s[k])
-                sl = slice(i, i + na)
-                out[sl, 0], out[sl, 1] = xs[jx], xs[jy]
-                out[sl, 2], out[sl, 3] = r * np.cos(theta), r * np.sin(theta)
-                out[sl, 4] = ws[jx] * ws[jy] * wr[k] / na
-                i += na
+    j = np.arange(m)
+    jx, jy = j % n_pixel, j // n_pixel
+    rings = []                                   # per ring (m, na, 5): pixel node j, then the ring's angles
+    for k in range(n_rings):
+        na = per_ring[k]
+        theta = 2 * np.pi * (np.arange(na)[None, :] + 0.5 * (k % 2) + (j / m)[:, None]) / na
+        r = math.sqrt(s[k])
+        block = np.empty((m, na, 5))
+        block[:, :, 0] = xs[jx][:, None]
+        block[:, :, 1] = xs[jy][:, None]
+        block[:, :, 2], block[:, :, 3] = r * np.cos(theta), r * np.sin(theta)
+        block[:, :, 4] = (ws[jx] * ws[jy] * wr[k] / na)[:, None]
+        rings.append(block)
+    out = np.concatenate(rings, axis=1).reshape(-1, 5)
     out.setflags(write=False)
     return out
 
@@ -222,6 +222,20 @@ def texture_fingerprint(texture: np.ndarray) -> tuple:
     return t.shape, float(t.sum(dtype=np.float64)), zlib.crc32(memoryview(t).cast("B"))
 
 
+#: The last rule chosen per texture, blur radius, exposure, tolerance and seed, whatever the Jacobian.
+_NEAR_RULES: dict = {}
+
+
+def _calibration_points(tex: np.ndarray, J: np.ndarray, rho_px: float, seed: int) -> np.ndarray:
+    """:data:`CALIBRATION_POINTS` random texel positions (x, y) far enough from the texture's edge for the rule's
+    reach through ``J`` at blur ``rho_px``."""
+    stretch = float(np.linalg.svd(J, compute_uv=False)[0])
+    rng = np.random.default_rng(seed)
+    reach = stretch * (rho_px + 1.0) + 2.0
+    lo = np.minimum(reach, 0.5 * np.array(tex.shape[::-1]))
+    return rng.uniform(lo, np.array(tex.shape[::-1]) - lo, size=(CALIBRATION_POINTS, 2))
+
+
 def choose_rule(texture: np.ndarray, jacobian_texels_per_px: np.ndarray, rho_px: float, exposure_grey: float,
                 tolerance_grey: float = DEFAULT_TOLERANCE_GREY, seed: int = 0, *,
                 detail_texels: float | None = None, fingerprint: tuple | None = None, at_least: int = 0) -> dict:
@@ -231,7 +245,8 @@ def choose_rule(texture: np.ndarray, jacobian_texels_per_px: np.ndarray, rho_px:
     ``jacobian_texels_per_px`` (2 x 2, d texel / d pixel) with a blur radius ``rho_px``. Returns ``{"rule":
     (n_p, n_r, n_t), "nodes", "error_grey", "dense": (n_p, n_r, n_t)}``; the dense rule itself where no
     candidate meets the tolerance. Candidates start from ``0.8 * at_least`` nodes (the rule of the next smaller
-    blur). Remembered per ``fingerprint`` (:func:`texture_fingerprint`) when given.
+    blur). Remembered per ``fingerprint`` (:func:`texture_fingerprint`) when given; then a rule chosen for the same
+    texture and blur at another Jacobian is tried first and kept where it measures within the tolerance here.
     """
     J = np.asarray(jacobian_texels_per_px, dtype=np.float64).reshape(2, 2)
     key = None
@@ -241,23 +256,42 @@ def choose_rule(texture: np.ndarray, jacobian_texels_per_px: np.ndarray, rho_px:
         if key in _RULES:
             return _RULES[key]
     tex = np.ascontiguousarray(texture, dtype=np.float32)
+    near = None if key is None else (key[0],) + key[2:6]
+    if near in _NEAR_RULES:
+        # the rule chosen for this texture and blur at another Jacobian (the next state or view): kept if it is
+        # measured within the tolerance here too (not necessarily the cheapest then)
+        rule, dense = _NEAR_RULES[near]
+        if detail_texels is None:
+            detail_texels = texture_detail_texels(tex)
+        centres = _calibration_points(tex, J, rho_px, seed)
+        ref = _model_values(tex, centres, J, rho_px, thin_lens_rule(*dense))
+        got = _model_values(tex, centres, J, rho_px, thin_lens_rule(*rule))
+        err = float(exposure_grey * np.sqrt(np.mean((got - ref) ** 2)))
+        if err <= tolerance_grey:
+            result = {"rule": rule, "nodes": rule_size(*rule), "error_grey": err, "dense": dense}
+            _RULES[key] = result
+            return result
     if detail_texels is None:
         detail_texels = texture_detail_texels(tex)
     stretch = float(np.linalg.svd(J, compute_uv=False)[0])
     detail_px = max(detail_texels / stretch, 0.25)
-    rng = np.random.default_rng(seed)
-    reach = stretch * (rho_px + 1.0) + 2.0
-    lo = np.minimum(reach, 0.5 * np.array(tex.shape[::-1]))
-    centres = rng.uniform(lo, np.array(tex.shape[::-1]) - lo, size=(CALIBRATION_POINTS, 2))
+    centres = _calibration_points(tex, J, rho_px, seed)
     dense = _dense(rho_px, detail_px)
     ref = _model_values(tex, centres, J, rho_px, thin_lens_rule(*dense))
     dense_nodes = rule_size(*dense)
     result = {"rule": dense, "nodes": dense_nodes, "error_grey": 0.0, "dense": dense}
+    # a candidate is first tried on a quarter of the points: one erring by more than twice the tolerance there is
+    # passed over without the full measurement (the rule chosen is always measured on every point)
+    few = CALIBRATION_POINTS // 4
     for cand in _candidates(rho_px, detail_px, at_least):
         nodes = rule_size(*cand)
         if nodes >= dense_nodes:
             break
-        got = _model_values(tex, centres, J, rho_px, thin_lens_rule(*cand))
+        rule = thin_lens_rule(*cand)
+        got = _model_values(tex, centres[:few], J, rho_px, rule)
+        if exposure_grey * np.sqrt(np.mean((got - ref[:few]) ** 2)) > 2.0 * tolerance_grey:
+            continue
+        got = _model_values(tex, centres, J, rho_px, rule)
         err = float(exposure_grey * np.sqrt(np.mean((got - ref) ** 2)))
         if err <= tolerance_grey:
             result = {"rule": cand, "nodes": nodes, "error_grey": err, "dense": dense}
@@ -265,7 +299,9 @@ def choose_rule(texture: np.ndarray, jacobian_texels_per_px: np.ndarray, rho_px:
     if key is not None:
         if len(_RULES) > 4096:
             _RULES.clear()
+            _NEAR_RULES.clear()
         _RULES[key] = result
+        _NEAR_RULES[near] = (tuple(result["rule"]), tuple(result["dense"]))
     return result
 
 
@@ -478,6 +514,24 @@ def _affine_texel_map(surface: TexturedSurface, V_cam: np.ndarray, faces: np.nda
     return n, float(n @ p0), M, m
 
 
+#: Relative depth by which another face must lie beyond a face group along a chief ray to count as behind it.
+BEHIND_REL = 1e-6
+
+
+def _behind(spec: SensorSpec, R: np.ndarray, t: np.ndarray, V_world: np.ndarray, faces: np.ndarray,
+            others: list[tuple[np.ndarray, np.ndarray]]) -> np.ndarray:
+    """(H, W) bool: pixels whose chief ray meets the group ``faces`` on its emitting side before every face of
+    ``others`` ((vertices, faces) pairs), by more than :data:`BEHIND_REL` of the depth. A pixel whose centre
+    misses the group, or where another face comes first, is False."""
+    from scenes.ray_surface import cast_rays
+
+    own = cast_rays(spec, R, t, V_world, faces)
+    nearest = np.full(own.depth_mm.shape, np.inf)
+    for Vk, fk in others:
+        np.minimum(nearest, cast_rays(spec, R, t, Vk, fk).depth_mm, out=nearest)
+    return (own.triangle >= 0) & own.front & (nearest > own.depth_mm * (1.0 + BEHIND_REL))
+
+
 def _ring_open(known: np.ndarray, P: np.ndarray) -> bool:
     """True if an unknown pixel of the sensor's outermost ring lies in the bounding box of the projected points
     ``P`` (..., 2) px: the only pixels of a sharp face group the in-focus pass leaves that this path can make."""
@@ -604,7 +658,7 @@ def fill_defocused_faces(spec: SensorSpec, R_cam_from_world: np.ndarray, t_cam_f
         whole = edge_all > 0
         # everything else that is seen: the other faces, dilated by their own blur
         near_other = np.zeros((H, W), dtype=bool)
-        other_polys, other_blur = [], 0.0
+        other_polys, other_meshes, other_blur = [], [], 0.0
         for k, (s, mask) in enumerate(zip(surfaces, seen)):
             mask = mask.copy()
             if k == si:
@@ -614,6 +668,7 @@ def fill_defocused_faces(spec: SensorSpec, R_cam_from_world: np.ndarray, t_cam_f
             Vk = np.asarray(s.vertices_mm, dtype=float)
             fk = np.asarray(s.faces, dtype=int)[mask]
             other_polys += list(Vk[fk])
+            other_meshes.append((Vk, fk))
             blur = defocus_blur_px(spec, R, t, Vk)[fk].max(axis=1)
             if not np.all(np.isfinite(blur)):
                 other_blur = np.inf
@@ -629,6 +684,10 @@ def fill_defocused_faces(spec: SensorSpec, R_cam_from_world: np.ndarray, t_cam_f
                 info["defocus_skipped"].append(f"surface {si}: {err}")
                 continue
             foot = np.abs(accumulate_flat(xy_o, st_o, np.ones(len(other_polys)), (H, W))) > 0
+            if (foot & whole).any():
+                # a face behind the group along a pixel's chief ray hides nothing there (the inner walls of a
+                # hollow specimen behind its painted front): only the footprint of what may lie in front counts
+                foot &= ~_behind(spec, R, t, Vw, faces[g], other_meshes)
             reach = int(math.ceil(0.5 * other_blur * BLUR_MARGIN + EDGE_MARGIN_PX))
             near_other = maximum_filter(foot, size=2 * reach + 1)
         todo = whole & ~known & ~near_other

@@ -180,3 +180,42 @@ def test_a_degenerate_triangle_is_refused_by_name():
     V = np.array([[0.0, 0.0, 10.0], [1.0, 0.0, 10.0], [2.0, 0.0, 10.0]])
     with pytest.raises(ValueError, match="1 degenerate"):
         triangle_table(V, np.array([[0, 1, 2]]), np.zeros((3, 2)), (4, 4))
+
+
+def test_a_face_behind_the_patch_hides_nothing_and_one_in_front_is_kept_clear_of(bent_views):
+    """A large flat plate 20 mm behind the bent plate (its footprint overlaps the whole view) leaves every pixel
+    the walk made alone made, bit for bit (its depth is behind the patch along every chief ray); a small plate
+    10 mm in front of the patch's middle is an occluder: no pixel within 1 px of its projected outline is made
+    by quadrature (its blurred edge is Mitsuba's)."""
+    from scenes.specimens import SpeckledPlate
+    from scenes.truth import project_points
+
+    scene, surface, spec, pose, _ = bent_views
+    n = np.asarray(scene.R_world_from_plate)[:, 2]                  # plate normal (+z: away from the camera)
+    p = scene.plate
+    back = SpeckledPlate(width_mm=2 * p.width_mm, height_mm=2 * p.height_mm, texel_mm=p.texel_mm,
+                         speckle_mm=p.speckle_mm, seed=9).surface(scene.R_world_from_plate,
+                                                                   scene.t_world_from_plate_mm + 20.0 * n)
+    alone, known0, _ = fill_defocused_faces(spec, *pose, [surface], *render_view_in_focus(
+        spec, *pose, [surface], exposure_grey=255.0)[:2], exposure_grey=255.0)
+    both, known1, _ = fill_defocused_faces(spec, *pose, [surface, back], *render_view_in_focus(
+        spec, *pose, [surface, back], exposure_grey=255.0)[:2], exposure_grey=255.0)
+    assert known1.sum() >= 0.99 * known0.sum()
+    assert np.array_equal(both[known0 & known1], alone[known0 & known1])
+
+    small = SpeckledPlate(width_mm=0.2 * p.width_mm, height_mm=0.2 * p.height_mm, texel_mm=p.texel_mm,
+                          speckle_mm=p.speckle_mm, seed=11)
+    front = small.surface(scene.R_world_from_plate, scene.t_world_from_plate_mm - 10.0 * n)
+    image, known, _ = render_view_in_focus(spec, *pose, [surface, front], exposure_grey=255.0)
+    image, known, _ = fill_defocused_faces(spec, *pose, [surface, front], image, known, exposure_grey=255.0)
+    V = np.asarray(front.vertices_mm)
+    edge = np.concatenate([V[i] + np.linspace(0, 1, 200)[:, None] * (V[(i + 1) % 4] - V[i]) for i in range(4)])
+    xy = project_points(spec, *pose, edge)
+    r = np.clip(np.round(xy[:, 1]).astype(int), 0, spec.height - 1)
+    c = np.clip(np.round(xy[:, 0]).astype(int), 0, spec.width - 1)
+    near = np.zeros_like(known)
+    for dr in (-1, 0, 1):
+        for dc in (-1, 0, 1):
+            near[np.clip(r + dr, 0, spec.height - 1), np.clip(c + dc, 0, spec.width - 1)] = True
+    assert not known[near].any()
+    assert known.sum() > 0.5 * known.size
