@@ -30,7 +30,6 @@ stratification and reuses it for every view, state and seed.
 """
 from __future__ import annotations
 
-import math
 import time
 import warnings
 from dataclasses import asdict, dataclass, field
@@ -403,43 +402,19 @@ def render_views_adaptive(views: list[tuple[SensorSpec, tuple[np.ndarray, np.nda
         check = lit & (rng.random(len(pixels)) < settings.check_fraction)
         check_var = np.zeros(len(pixels))
 
-        def trace_levels(level, sides, salt):
-            done = 0
-            for j, side in [(-1, ps)] + list(enumerate(sides)):
-                sel = np.flatnonzero(level == j)
-                if len(sel) == 0:
-                    continue
-                if j >= 0:
-                    value[sel] = _trace(scene, sensors[i], pixels[sel], spec.width, side,
-                                        _stream(view_seed, 2 * side + salt), thin)
-                    spp[sel] = side * side
-                    done += side * side * len(sel)
-                chk = sel[check[sel]]
-                if len(chk):
-                    again = _trace(scene, sensors[i], pixels[chk], spec.width, side,
-                                   _stream(view_seed, 2 * side + 1 + salt), thin)
-                    check_var[chk] = (again - value[chk]) ** 2 / 2.0          # variance of one batch's mean
-                    done += side * side * len(chk)
-            return done
-
-        traced += trace_levels(level, settings.sides, 0)
-        # Measured, not assumed: where the check pixels' noise exceeds the error model's prediction (a pilot whose
-        # samples all agreed on a blurred silhouette under-states its spread), the model's scale is corrected by
-        # their ratio and the pixels whose stratification then rises are traced again, up to REFINE_SIDES
-        n_check = int(check.sum())
-        if n_check >= MIN_CHECK_PIXELS:
-            measured = math.sqrt(check_var[check].mean())
-            model = math.sqrt(np.mean((kappa * sigma[check] * np.sqrt(np.maximum(spp[check], 1)) ** -p) ** 2))
-            if measured > MISSED_RATIO * target and model > 0:
-                sides2 = tuple(settings.sides) + tuple(s for s in REFINE_SIDES if s > max(settings.sides))
-                level2, worst2 = _allocate(sigma, lit, ps, sides2, target, kappa * measured / model, p)
-                grid2 = np.array([ps] + list(sides2))
-                rise = (grid2[level2 + 1] ** 2 > spp) & lit
-                cost = int(np.sum(grid2[level2[rise] + 1] ** 2)) * (1.0 + settings.check_fraction)
-                if cost <= REFINE_BUDGET_SPP * len(pixels):
-                    kappa *= measured / model
-                    worst = worst2
-                    traced += trace_levels(np.where(rise, level2, -2), sides2, 4096)
+        for j, side in [(-1, ps)] + list(enumerate(settings.sides)):
+            sel = np.flatnonzero(level == j)
+            if len(sel) == 0:
+                continue
+            if j >= 0:
+                value[sel] = _trace(scene, sensors[i], pixels[sel], spec.width, side, _stream(view_seed, 2 * side), thin)
+                spp[sel] = side * side
+                traced += side * side * len(sel)
+            chk = sel[check[sel]]
+            if len(chk):
+                again = _trace(scene, sensors[i], pixels[chk], spec.width, side, _stream(view_seed, 2 * side + 1), thin)
+                check_var[chk] = (again - value[chk]) ** 2 / 2.0          # variance of one batch's mean
+                traced += side * side * len(chk)
         predicted = np.where(spp > 0, kappa * sigma * np.sqrt(np.maximum(spp, 1)) ** -p, 0.0)   # 0: a known pixel
         image = np.zeros((spec.height, spec.width), dtype=np.float32)
         image[y0:y0 + h, x0:x0 + w] = (value * exposure_grey).reshape(h, w).astype(np.float32)
@@ -477,10 +452,6 @@ MISSED_RATIO = 1.25
 
 #: Check pixels enough for their measured noise to overrule the error model's prediction.
 MIN_CHECK_PIXELS = 200
-#: Finer stratifications a second, corrected allocation may add (side; side^2 samples per pixel).
-REFINE_SIDES = (32, 45, 64)
-#: Largest cost of that second allocation, samples per pixel of the crop (beyond it the miss is reported).
-REFINE_BUDGET_SPP = 32
 
 
 def _target_missed(mc: dict) -> str | None:
