@@ -27,7 +27,7 @@ import math
 import numba
 import numpy as np
 
-from scenes.defocus_quadrature import _bilinear, _focus_point
+from scenes.thin_lens_rays import bilinear_lookup, focus_point
 
 #: Barycentric slack of "inside a triangle" (rays through a shared edge end in either triangle).
 INSIDE_TOL = 1e-9
@@ -149,7 +149,7 @@ def _plane_point(tab, k, X, Y, Z):
 def blur_and_scale(xy, rows, cols, seeds, tab, cx, cy, fx, fy, e1z, e2z, v_mm, F_mm, A_mm):
     """Per listed pixel, on its chief ray's triangle's plane: the blur radius (px, the largest at its four
     corners), the largest singular value of d texel / d pixel and that Jacobian (as
-    :func:`scenes.defocus_quadrature._blur_and_scale`)."""
+    the flat path's ``_blur_and_scale``)."""
     N = len(rows)
     rho = np.empty(N)
     scale = np.empty(N)
@@ -161,7 +161,7 @@ def blur_and_scale(xy, rows, cols, seeds, tab, cx, cy, fx, fy, e1z, e2z, v_mm, F
         tv = np.empty(4)
         bad = False
         for q in range(4):
-            X, Y, Z = _focus_point(xy, r + q // 2, c + q % 2, cx, cy, fx, fy, e1z, e2z, v_mm, F_mm)
+            X, Y, Z = focus_point(xy, r + q // 2, c + q % 2, cx, cy, fx, fy, e1z, e2z, v_mm, F_mm)
             lam, u, v = _plane_point(tab, k, X, Y, Z)
             if lam <= 0.0:
                 bad = True
@@ -195,10 +195,10 @@ def integrate_pixels(rows, cols, seeds, bins, starts, rule, A_mm, xy, cx, cy, fx
     trows, tcols = texture.shape
     for i in numba.prange(len(rows)):
         r, c = rows[i], cols[i]
-        X0, Y0, Z0 = _focus_point(xy, r, c, cx, cy, fx, fy, e1z, e2z, v_mm, F_mm)
-        X1, Y1, Z1 = _focus_point(xy, r, c + 1, cx, cy, fx, fy, e1z, e2z, v_mm, F_mm)
-        X2, Y2, Z2 = _focus_point(xy, r + 1, c, cx, cy, fx, fy, e1z, e2z, v_mm, F_mm)
-        X3, Y3, Z3 = _focus_point(xy, r + 1, c + 1, cx, cy, fx, fy, e1z, e2z, v_mm, F_mm)
+        X0, Y0, Z0 = focus_point(xy, r, c, cx, cy, fx, fy, e1z, e2z, v_mm, F_mm)
+        X1, Y1, Z1 = focus_point(xy, r, c + 1, cx, cy, fx, fy, e1z, e2z, v_mm, F_mm)
+        X2, Y2, Z2 = focus_point(xy, r + 1, c, cx, cy, fx, fy, e1z, e2z, v_mm, F_mm)
+        X3, Y3, Z3 = focus_point(xy, r + 1, c + 1, cx, cy, fx, fy, e1z, e2z, v_mm, F_mm)
         k = seeds[i]
         acc = 0.0
         ok = True
@@ -235,7 +235,7 @@ def integrate_pixels(rows, cols, seeds, bins, starts, rule, A_mm, xy, cx, cy, fx
                 break
             u = tab[k, 12] * X + tab[k, 13] * Y + tab[k, 14] * Z + tab[k, 15]
             v = tab[k, 16] * X + tab[k, 17] * Y + tab[k, 18] * Z + tab[k, 19]
-            acc += rule[j, 4] * _bilinear(texture, trows, tcols, u, v)
+            acc += rule[j, 4] * bilinear_lookup(texture, trows, tcols, u, v)
         out[i] = acc if ok else np.nan
 
 

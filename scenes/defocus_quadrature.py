@@ -43,6 +43,7 @@ from scenes.coverage_raster import accumulate_flat
 from scenes.exact_render import (MAX_BLUR_PX, NotExactError, closed_surface, facing_distance_mm, project_outlines,
                                  sensor_corner_coordinates)
 from scenes.surfaces import TexturedSurface
+from scenes.thin_lens_rays import bilinear_lookup, focus_point
 
 #: Name of this module's part of a render.
 RENDERER_DEFOCUS = "defocus-quadrature"
@@ -178,24 +179,10 @@ def _model_values(texture, centres, J, rho, rule):
         for j in range(rule.shape[0]):
             dx = rule[j, 0] - 0.5 - rho * rule[j, 2]
             dy = rule[j, 1] - 0.5 - rho * rule[j, 3]
-            acc += rule[j, 4] * _bilinear(texture, rows, cols, centres[i, 0] + J[0, 0] * dx + J[0, 1] * dy,
+            acc += rule[j, 4] * bilinear_lookup(texture, rows, cols, centres[i, 0] + J[0, 0] * dx + J[0, 1] * dy,
                                           centres[i, 1] + J[1, 0] * dx + J[1, 1] * dy)
         out[i] = acc
     return out
-
-
-@numba.njit(cache=True, inline="always")
-def _bilinear(texture, rows, cols, x, y):
-    """Mitsuba's bilinear lookup (texel centres at integers, clamp to the edge); ``rows, cols >= 2``."""
-    x = min(max(x, 0.0), cols - 1.0)
-    y = min(max(y, 0.0), rows - 1.0)
-    i0 = min(int(x), cols - 2)
-    j0 = min(int(y), rows - 2)
-    fx = x - i0
-    fy = y - j0
-    top = texture[j0, i0] + fx * (texture[j0, i0 + 1] - texture[j0, i0])
-    bottom = texture[j0 + 1, i0] + fx * (texture[j0 + 1, i0 + 1] - texture[j0 + 1, i0])
-    return top + fy * (bottom - top)
 
 
 def texture_detail_texels(texture: np.ndarray) -> float:
@@ -306,17 +293,6 @@ def choose_rule(texture: np.ndarray, jacobian_texels_per_px: np.ndarray, rho_px:
 
 
 # --- the view ---------------------------------------------------------------------------------------------
-@numba.njit(cache=True, inline="always")
-def _focus_point(xy, r, c, cx, cy, fx, fy, e1z, e2z, v_mm, F_mm):
-    """The conjugate, in the plane of sharp focus, of sensor corner (r, c) (camera frame, mm), as the plugin
-    computes it: along the undistorted chief ray at the depth conjugate to the corner's distance behind the lens."""
-    s = (c - 0.5 - cx) / fx
-    t = (r - 0.5 - cy) / fy
-    pz = 1.0 + s * e1z + t * e2z
-    z_o = 1.0 / (1.0 / F_mm - 1.0 / (v_mm * pz))
-    return xy[r, c, 0] * z_o, xy[r, c, 1] * z_o, z_o
-
-
 @numba.njit(cache=True, parallel=True)
 def _blur_and_scale(xy, r0, r1, c0, c1, cx, cy, fx, fy, e1z, e2z, v_mm, F_mm, A_mm, n, d, M, m):
     """Per pixel of rows [r0, r1) x cols [c0, c1): the blur radius (px, largest at its corners) of the plane's
@@ -328,7 +304,7 @@ def _blur_and_scale(xy, r0, r1, c0, c1, cx, cy, fx, fy, e1z, e2z, v_mm, F_mm, A_
     tv = np.empty((h + 1, w + 1))
     for i in numba.prange(h + 1):
         for j in range(w + 1):
-            X, Y, Z = _focus_point(xy, r0 + i, c0 + j, cx, cy, fx, fy, e1z, e2z, v_mm, F_mm)
+            X, Y, Z = focus_point(xy, r0 + i, c0 + j, cx, cy, fx, fy, e1z, e2z, v_mm, F_mm)
             den = n[0] * X + n[1] * Y + n[2] * Z
             lam = d / den if den != 0.0 else -1.0
             if lam <= 0.0:
@@ -371,7 +347,7 @@ def _node_table(rule: np.ndarray, A_mm: float, n: np.ndarray, M: np.ndarray) -> 
 @numba.njit(cache=True, inline="always")
 def _corner(xy, r, c, cx, cy, fx, fy, e1z, e2z, v_mm, F_mm, n, M):
     """n . F, M F (the texel map's linear part) of sensor corner (r, c)'s focus point F (float64 scalars)."""
-    X, Y, Z = _focus_point(xy, r, c, cx, cy, fx, fy, e1z, e2z, v_mm, F_mm)
+    X, Y, Z = focus_point(xy, r, c, cx, cy, fx, fy, e1z, e2z, v_mm, F_mm)
     return (n[0] * X + n[1] * Y + n[2] * Z, M[0, 0] * X + M[0, 1] * Y + M[0, 2] * Z,
             M[1, 0] * X + M[1, 1] * Y + M[1, 2] * Z)
 
