@@ -248,8 +248,6 @@ def choose_rule(texture: np.ndarray, jacobian_texels_per_px: np.ndarray, rho_px:
         # the rule chosen for this texture and blur at another Jacobian (the next state or view): kept if it is
         # measured within the tolerance here too (not necessarily the cheapest then)
         rule, dense = _NEAR_RULES[near]
-        if detail_texels is None:
-            detail_texels = texture_detail_texels(tex)
         centres = _calibration_points(tex, J, rho_px, seed)
         ref = _model_values(tex, centres, J, rho_px, thin_lens_rule(*dense))
         got = _model_values(tex, centres, J, rho_px, thin_lens_rule(*rule))
@@ -494,14 +492,13 @@ def _affine_texel_map(surface: TexturedSurface, V_cam: np.ndarray, faces: np.nda
 BEHIND_REL = 1e-6
 
 
-def _behind(spec: SensorSpec, R: np.ndarray, t: np.ndarray, V_world: np.ndarray, faces: np.ndarray,
-            others: list[tuple[np.ndarray, np.ndarray]]) -> np.ndarray:
-    """(H, W) bool: pixels whose chief ray meets the group ``faces`` on its emitting side before every face of
-    ``others`` ((vertices, faces) pairs), by more than :data:`BEHIND_REL` of the depth. A pixel whose centre
-    misses the group, or where another face comes first, is False."""
+def _behind(spec: SensorSpec, R: np.ndarray, t: np.ndarray, own, others: list[tuple[np.ndarray, np.ndarray]]
+            ) -> np.ndarray:
+    """(H, W) bool: pixels whose chief ray meets the group (``own``: its :class:`scenes.ray_surface.RayHits`) on its
+    emitting side before every face of ``others`` ((vertices, faces) pairs), by more than :data:`BEHIND_REL` of the
+    depth. A pixel whose centre misses the group, or where another face comes first, is False."""
     from scenes.ray_surface import cast_rays
 
-    own = cast_rays(spec, R, t, V_world, faces)
     nearest = np.full(own.depth_mm.shape, np.inf)
     for Vk, fk in others:
         np.minimum(nearest, cast_rays(spec, R, t, Vk, fk).depth_mm, out=nearest)
@@ -561,6 +558,7 @@ def fill_defocused_faces(spec: SensorSpec, R_cam_from_world: np.ndarray, t_cam_f
     from scenes.defocus_mesh import blur_and_scale as mesh_blur_and_scale
     from scenes.defocus_mesh import edge_neighbours, smooth_components, triangle_table
     from scenes.defocus_mesh import integrate_pixels as mesh_integrate_pixels
+    from scenes.ray_surface import cast_rays
     from scenes.truth import defocus_blur_px, project_points, tilted_sensor_axes
 
     R = np.asarray(R_cam_from_world, dtype=float)
@@ -634,6 +632,7 @@ def fill_defocused_faces(spec: SensorSpec, R_cam_from_world: np.ndarray, t_cam_f
         whole = edge_all > 0
         # everything else that is seen: the other faces, dilated by their own blur
         near_other = np.zeros((H, W), dtype=bool)
+        own_hits = None                      # the group's chief-ray hits, cast once where needed
         other_polys, other_meshes, other_blur = [], [], 0.0
         for k, (s, mask) in enumerate(zip(surfaces, seen)):
             mask = mask.copy()
@@ -663,7 +662,8 @@ def fill_defocused_faces(spec: SensorSpec, R_cam_from_world: np.ndarray, t_cam_f
             if (foot & whole).any():
                 # a face behind the group along a pixel's chief ray hides nothing there (the inner walls of a
                 # hollow specimen behind its painted front): only the footprint of what may lie in front counts
-                foot &= ~_behind(spec, R, t, Vw, faces[g], other_meshes)
+                own_hits = cast_rays(spec, R, t, Vw, faces[g])
+                foot &= ~_behind(spec, R, t, own_hits, other_meshes)
             reach = int(math.ceil(0.5 * other_blur * BLUR_MARGIN + EDGE_MARGIN_PX))
             near_other = maximum_filter(foot, size=2 * reach + 1)
         todo = whole & ~known & ~near_other
@@ -683,10 +683,8 @@ def fill_defocused_faces(spec: SensorSpec, R_cam_from_world: np.ndarray, t_cam_f
             rho_ok, scale_ok, jac_ok = rho[rr, cc], scale[rr, cc], jac[rr, cc]
             rr, cc = rr + r0, cc + c0
         else:
-            from scenes.ray_surface import cast_rays
-
             tab = triangle_table(V_cam, faces[g], surface.uv, tex.shape)
-            hits = cast_rays(spec, R, t, Vw, faces[g])
+            hits = own_hits if own_hits is not None else cast_rays(spec, R, t, Vw, faces[g])
             rr, cc = _tile_order(todo & (hits.triangle >= 0) & hits.front)
             if not len(rr):
                 continue
