@@ -14,7 +14,7 @@ import numpy as np
 
 from measurement.calibration.detection import board_points_mm
 from measurement.calibration.stepwise import calibrate_stereo
-from scenes.targets import Checkerboard
+from scenes.surfaces.checkerboard import Checkerboard
 from workbench.experiments.calibration.views import board_outline_mm
 from workbench.poses import random_board_poses
 from workbench.rigs import paper_rig

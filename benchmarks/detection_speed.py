@@ -18,10 +18,10 @@ import time
 import numpy as np
 
 import measurement.calibration.detection as detection
-from scenes.exact_render import render_view_exact
-from scenes.noise import SensorNoise, to_image_dtype
-from scenes.targets import Checkerboard
-from scenes.truth import project_points
+from scenes.rendering.exact import render_view_exact
+from scenes.sensor.noise import SensorNoise, to_image_dtype
+from scenes.surfaces.checkerboard import Checkerboard
+from scenes.optics.projection import project_points
 from workbench.experiments.calibration.views import board_outline_mm, sensor_spec_for
 from workbench.poses import random_board_poses
 from workbench.rigs import get_rig

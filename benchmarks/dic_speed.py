@@ -43,8 +43,9 @@ import numba
 import numpy as np
 
 from measurement.dic import DICSettings, correlate
-from scenes.noise import apply_sensor_noise
-from scenes.synthetic_images import HomogeneousStrain, extent_for_shape, gaussian_speckle, radius_for_speckle_size
+from scenes.sensor.noise import apply_sensor_noise
+from scenes.image_pairs.analytic_fields import HomogeneousStrain
+from scenes.image_pairs.gaussian_speckle import extent_for_shape, gaussian_speckle, radius_for_speckle_size
 
 def _peak_mib() -> float:
     """High-water resident memory of this process, MiB (VmHWM: unlike ru_maxrss it is not inherited from the

@@ -1,4 +1,4 @@
-"""Defocus without Monte Carlo (scenes.defocus_quadrature) on the depth-of-field experiment's untilted camera at full
+"""Defocus without Monte Carlo (scenes.rendering.defocus_quadrature) on the depth-of-field experiment's untilted camera at full
 resolution (2456 x 2058 px, f/4, a speckled plate at 38°: blur circles from 0 to ~17 px): time and error against
 converged Mitsuba thin-lens renders.
 
@@ -21,12 +21,13 @@ import time
 
 import numpy as np
 
-from scenes.adaptive import AdaptiveSettings, render_views_adaptive
-from scenes.backend import VARIANT
-from scenes.defocus_quadrature import DEFAULT_TOLERANCE_GREY, fill_defocused_faces
-from scenes.exact_render import render_view_in_focus
-from scenes.render import render_view
-from scenes.truth import defocus_blur_px, pixel_rays
+from scenes.rendering.adaptive import AdaptiveSettings, render_views_adaptive
+from scenes.optics.backend import VARIANT
+from scenes.rendering.defocus_rules import DEFAULT_TOLERANCE_GREY
+from scenes.rendering.defocus_quadrature import fill_defocused_faces
+from scenes.rendering.exact import render_view_in_focus
+from scenes.rendering.mitsuba import render_view
+from scenes.optics.projection import defocus_blur_px, pixel_rays
 from workbench.experiments.depth_of_field.run import depth_of_field_scene
 
 

@@ -1,4 +1,4 @@
-"""The exact board renderer (scenes.exact_render) against Mitsuba at full resolution: time and render error.
+"""The exact board renderer (scenes.rendering.exact) against Mitsuba at full resolution: time and render error.
 
 For one board view of the paper rig (both cameras, 2456 x 2058 px): the exact box-filtered render, the adaptive
 Mitsuba render at the paper run's target (0.3 grey RMS MC noise) and a reference of 2 x ``--ref-spp`` stratified
@@ -16,11 +16,13 @@ import time
 
 import numpy as np
 
-from scenes.adaptive import AdaptiveSettings, render_views_adaptive
-from scenes.backend import VARIANT
-from scenes.exact_render import render_view_exact
-from scenes.render import render_view
-from scenes.targets import CharucoBoard, Checkerboard, DotGrid
+from scenes.rendering.adaptive import AdaptiveSettings, render_views_adaptive
+from scenes.optics.backend import VARIANT
+from scenes.rendering.exact import render_view_exact
+from scenes.rendering.mitsuba import render_view
+from scenes.surfaces.charuco import CharucoBoard
+from scenes.surfaces.checkerboard import Checkerboard
+from scenes.surfaces.dot_grid import DotGrid
 from workbench.experiments.calibration.views import board_outline_mm, sensor_spec_for
 from workbench.poses import random_board_poses
 from workbench.rigs import get_rig

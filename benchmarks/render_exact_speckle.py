@@ -1,4 +1,4 @@
-"""The deterministic speckle renderer (exact coverage + Gauss-Legendre quadrature, scenes.exact_render) against
+"""The deterministic speckle renderer (exact coverage + Gauss-Legendre quadrature, scenes.rendering.exact) against
 Mitsuba at full resolution (2456 x 2058 px, pinhole, the paper rig's tilted, distorted cameras): time and render
 error.
 
@@ -23,11 +23,11 @@ import time
 
 import numpy as np
 
-from scenes.adaptive import AdaptiveSettings, render_views_adaptive
-from scenes.backend import VARIANT
-from scenes.exact_render import QUADRATURE_ORDER, render_view_exact, render_view_in_focus
-from scenes.render import render_view
-from scenes.specimens import SpeckledPlate
+from scenes.rendering.adaptive import AdaptiveSettings, render_views_adaptive
+from scenes.optics.backend import VARIANT
+from scenes.rendering.exact import QUADRATURE_ORDER, render_view_exact, render_view_in_focus
+from scenes.rendering.mitsuba import render_view
+from scenes.specimens.plate import SpeckledPlate
 from workbench.experiments.bending.scenes import bending_truth
 from workbench.experiments.rigid_motion.scenes import rigid_motion_truth
 from workbench.poses import common_view_centre_mm

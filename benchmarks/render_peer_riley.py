@@ -3,7 +3,7 @@
 Measures, in one process on the same machine, the seconds to render one stereo pair (left and right camera
 of ``paper_rig(scale)``, default full 2456 x 2058 px each) of the same speckled plate with
 
-* ``ours``: :func:`scenes.render.render_view`, pinhole, the rig's tilted (Scheimpflug) sensors with their
+* ``ours``: :func:`scenes.rendering.mitsuba.render_view`, pinhole, the rig's tilted (Scheimpflug) sensors with their
   Brown distortion, ``--spp`` stratified-jittered Monte-Carlo samples per pixel (box pixel filter), bilinear
   texture lookup; one ``render_view`` call per camera;
 * ``riley``: ``riley.raster`` (rasteriser, no ray tracing), both cameras in one call. Its per-pixel
@@ -16,7 +16,7 @@ of ``paper_rig(scale)``, default full 2456 x 2058 px each) of the same speckled 
   Brown model (``distort_model=1``, centred on the image centre, so not the same field of view pixel for
   pixel: the same amount of work per pixel, not the same image).
 
-Both get the same speckle texture (generated once with :class:`scenes.specimens.SpeckledPlate`, float32
+Both get the same speckle texture (generated once with :class:`scenes.specimens.plate.SpeckledPlate`, float32
 radiance in [0, 1]; riley copies it to float64 on every call) and the same two-triangle plate, which fills
 both views. Riley's texel centres sit at ``u (cols - 1)``, ours at ``u cols - 1/2``: riley's uvs are
 remapped so that each texel lands on the same spot of the plate. Both images are radiance times 255 grey.
@@ -55,10 +55,10 @@ if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
 from labio.atomic import atomic_write_text  # noqa: E402
-from scenes.backend import VARIANT  # noqa: E402
-from scenes.render import render_view  # noqa: E402
-from scenes.specimens import SpeckledPlate  # noqa: E402
-from scenes.truth import pixel_rays  # noqa: E402
+from scenes.optics.backend import VARIANT
+from scenes.rendering.mitsuba import render_view
+from scenes.specimens.plate import SpeckledPlate
+from scenes.optics.projection import pixel_rays
 from workbench.experiments.calibration.views import camera_to_sensor_spec  # noqa: E402
 from workbench.rigs import facing_plane_world, paper_rig  # noqa: E402
 
@@ -245,7 +245,7 @@ def render_pair_both(scale: float = 1.0, spp: int = 64, repeat: int = 1, seed: i
     rows.append(dict(renderer=f"ours (Mitsuba {VARIANT})", spp=spp, seconds=t_ours, images=img_ours,
                      per_pixel=f"{spp} stratified-jittered MC rays, box filter, bilinear texture"))
     if mc_target_grey is not None:
-        from scenes.adaptive import AdaptiveSettings, render_views_adaptive
+        from scenes.rendering.adaptive import AdaptiveSettings, render_views_adaptive
 
         def adaptive(k):
             return render_views_adaptive([(scene.specs[s], scene.poses[s]) for s in ("left", "right")],
@@ -253,7 +253,7 @@ def render_pair_both(scale: float = 1.0, spp: int = 64, repeat: int = 1, seed: i
                                          settings=AdaptiveSettings(target_mc_grey=mc_target_grey))
         t_ad, res = _best_of(adaptive, repeat)
         traced = float(np.mean([r.mc["sensor_spp"] for r in res]))
-        rows.append(dict(renderer="ours, adaptive (scenes.adaptive)", spp=traced, seconds=t_ad,
+        rows.append(dict(renderer="ours, adaptive (scenes.rendering.adaptive)", spp=traced, seconds=t_ad,
                          images=[r.image_grey for r in res],
                          per_pixel=f"adaptive stratified MC, target {mc_target_grey:g} grey RMS, measured "
                                    + " / ".join(f"{r.mc['mc_rms_grey']:.3f}" for r in res)
@@ -269,7 +269,7 @@ def render_pair_both(scale: float = 1.0, spp: int = 64, repeat: int = 1, seed: i
 def equal_error_comparison(scale: float = 1.0, seed: int = 0, ref_spp: int = 2048, window: int = 300,
                            riley_ns=(1, 2, 3, 4, 6, 8), riley_ref_n: int = 24) -> dict:
     """Time per stereo pair at equal *measured* render error: our deterministic renderer
-    (:func:`scenes.exact_render.render_view_exact`: exact coverage, Gauss-Legendre quadrature of the speckle)
+    (:func:`scenes.rendering.exact.render_view_exact`: exact coverage, Gauss-Legendre quadrature of the speckle)
     against riley at the coarsest sub-pixel grid whose error is no larger.
 
     Each renderer's error is measured against its own converged image of the same plate (the two model
@@ -278,7 +278,7 @@ def equal_error_comparison(scale: float = 1.0, seed: int = 0, ref_spp: int = 204
     Monte-Carlo noise; riley against its ``riley_ref_n`` x ``riley_ref_n`` grid render over the same window.
     Returns ``{"ours": {...}, "riley": [{n, seconds, error_grey: [left, right]}, ...], "equal": {...}}``.
     """
-    from scenes.exact_render import render_view_exact
+    from scenes.rendering.exact import render_view_exact
 
     scene = build_scene(scale, seed)
     mesh = riley_mesh(scene)

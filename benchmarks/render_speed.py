@@ -13,9 +13,9 @@ import time
 
 import numpy as np
 
-from scenes.backend import VARIANT
-from scenes.render import render_view
-from scenes.specimens import SpeckledPlate
+from scenes.optics.backend import VARIANT
+from scenes.rendering.mitsuba import render_view
+from scenes.specimens.plate import SpeckledPlate
 from workbench.experiments.calibration.views import camera_to_sensor_spec
 from workbench.rigs import paper_rig
 

@@ -40,8 +40,8 @@ def main(argv=None) -> int:
     ap.add_argument("--out", type=Path, default=Path("reports/specimen_speed"))
     args = ap.parse_args(argv)
 
-    from scenes.fe_files import write_exodus
-    from scenes.noise import SensorNoise
+    from scenes.specimens.fe_files import write_exodus
+    from scenes.sensor.noise import SensorNoise
     from workbench.config import from_dict
     from workbench.scenario import Scenario
 
@@ -79,7 +79,7 @@ def main(argv=None) -> int:
     start = time.perf_counter()
     pt = spec.material_points(*cams["left"], *built.pose)
     figures["truth_5mp_again_s"] = time.perf_counter() - start
-    from scenes.adaptive import AdaptiveSettings, render_views_auto
+    from scenes.rendering.adaptive import AdaptiveSettings, render_views_auto
     start = time.perf_counter()
     views = [(specs[side], rig.pose(side)) for side in ("left", "right")]
     auto = render_views_auto(views, spec.surfaces(0, *built.pose), seed=0, exposure_grey=255.0,

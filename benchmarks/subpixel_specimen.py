@@ -34,7 +34,7 @@ def main() -> None:
 
     from measurement.dic import DICSettings, correlate
     from measurement.image_io import read_grey
-    from scenes.fe_catalog import CATALOG, write_pvd
+    from scenes.specimens.catalog import CATALOG, write_pvd
     from workbench.config import load_config
     from workbench.experiments.specimen.case import measurable_mask
     from workbench.experiments.specimen.catalog import scenario_text
@@ -96,7 +96,7 @@ def main() -> None:
 
     # What is measurable: the instrument alone on the reference moved by an exact (band-limited) shift, with fresh
     # sensor noise of the scenario's model, on the same points.
-    from scenes.noise import SensorNoise
+    from scenes.sensor.noise import SensorNoise
     from workbench.experiments.subpixel import fourier_shift
 
     r = scenario.render

@@ -9,7 +9,7 @@ along x and by seeded random fractions along both axes. For every path and phase
 * motion error: DIC from the render at rest to the render moved, minus the motion, beside the instrument alone on
   the two references (the exact images).
 
-The twin's photographed texture (:mod:`scenes.image_texture`) is checked on a periodic 5 px speckle
+The twin's photographed texture (:mod:`scenes.surfaces.image_texture`) is checked on a periodic 5 px speckle
 "photograph", whose exact motion is its Fourier shift: render error = DIC from that shift to the twin's image.
 
 "before" looks the pattern itself up (5 texels per speckle, as every mesh-specimen path did before issue 38); the
@@ -28,7 +28,7 @@ from pathlib import Path
 
 import numpy as np
 
-from scenes.exact_render import render_view_exact
+from scenes.rendering.exact import render_view_exact
 from workbench.experiments.subpixel import PATHS, PlateScene, phase_errors
 
 from timing import best_of
@@ -75,12 +75,12 @@ def main() -> None:
         rows = phase_errors(scene, path, phases)
         print(_summary_line(label, rows))
         table.append({"label": label, "path": path, "rows": rows})
-    from scenes.speckle import speckle_pattern
+    from scenes.surfaces.speckle import speckle_pattern
     from workbench.experiments.subpixel import photo_phase_errors
 
     photo = 20.0 + 200.0 * speckle_pattern((192, 192), 5.0, contrast=0.8, seed=3).astype(float)
     for label, upsample in (("twin photo texture, before (cubic through pixels)", 1), ("twin photo texture", None)):
-        import scenes.image_texture as image_texture
+        import scenes.surfaces.image_texture as image_texture
 
         kept = image_texture.UPSAMPLE
         image_texture.UPSAMPLE = upsample or kept

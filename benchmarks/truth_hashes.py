@@ -6,7 +6,8 @@ then ``workbench render specimen``), and the twin's rendered rig (a flat plate r
 quarter scale, then ``workbench twin`` on it: the numbers of its twin.json). Prints one ``sha256  path`` line per file, sorted,
 and writes them to ``--out``; compare two such files with ``diff`` (give both runs the same ``--work`` folder:
 the truth files name the paths of their inputs). Timing and provenance files (which hold dates,
-durations, versions) are left out: they are not images or truth.
+durations, versions) are left out, and JSON files are hashed without their timing keys: they are not images or
+truth.
 
 Usage::
 
@@ -39,7 +40,15 @@ def workbench(*args: str, store: Path) -> None:
     subprocess.run([str(exe), *args], check=True, env=env, stdout=subprocess.DEVNULL)
 
 
+#: JSON keys that hold seconds (they differ from run to run; the rest of the file is truth).
+TIMING_KEYS = ("timings_s", "seconds", "render_s", "solve_time_s", "elapsed_s", "wall_s")
+
+
 def digest(path: Path) -> str:
+    """SHA-256 of the file's bytes; of a JSON file, of its content without timing keys (canonical form)."""
+    if path.suffix == ".json":
+        doc = without_timings(json.loads(path.read_text()))
+        return hashlib.sha256(json.dumps(doc, sort_keys=True).encode()).hexdigest()
     h = hashlib.sha256()
     with open(path, "rb") as f:
         for block in iter(lambda: f.read(1 << 20), b""):
@@ -58,9 +67,9 @@ def hashed_files(root: Path, label: str) -> list[str]:
 
 
 def without_timings(value):
-    """A JSON value with every ``timings_s`` entry dropped, at any depth (seconds differ run to run)."""
+    """A JSON value with every timing entry (:data:`TIMING_KEYS`) dropped, at any depth."""
     if isinstance(value, dict):
-        return {k: without_timings(v) for k, v in value.items() if k != "timings_s"}
+        return {k: without_timings(v) for k, v in value.items() if k not in TIMING_KEYS}
     if isinstance(value, list):
         return [without_timings(v) for v in value]
     return value
@@ -91,7 +100,7 @@ def twin(work: Path) -> list[str]:
     try:
         from scenes.specimens.fe_files import write_exodus
     except ImportError:  # before the move into rooms (issue 41)
-        from scenes.fe_files import write_exodus
+        from scenes.specimens.fe_files import write_exodus
 
     folder = work / "twin"
     folder.mkdir()

@@ -34,7 +34,7 @@ def render_case(folder: Path, rig: str, scale: float, read: float, gain: float) 
     import skfem
     from skfem.io.meshio import to_meshio
 
-    from scenes.fe_files import write_exodus
+    from scenes.specimens.fe_files import write_exodus
     from workbench.cli import main
 
     m = to_meshio(skfem.MeshTet.init_tensor(np.linspace(-30, 30, 7), np.linspace(-20, 20, 5), np.linspace(0, 3, 2)))

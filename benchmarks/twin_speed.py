@@ -29,9 +29,9 @@ def make_user_files(work: Path, scale: float) -> dict:
 
     from measurement.calibration.formats import save_calibration_as
     from measurement.calibration.io import CalibratedRig
-    from scenes.image_texture import ImageTexture, TexturedPlane, render_plane_view
-    from scenes.noise import apply_sensor_noise
-    from scenes.synthetic_images import extent_for_shape, gaussian_speckle, radius_for_speckle_size
+    from scenes.surfaces.image_texture import ImageTexture, TexturedPlane, render_plane_view
+    from scenes.sensor.noise import apply_sensor_noise
+    from scenes.image_pairs.gaussian_speckle import extent_for_shape, gaussian_speckle, radius_for_speckle_size
     from workbench.experiments.calibration.views import sensor_spec_for
     from workbench.rigs import get_rig
     from workbench.twin.scene import default_plane

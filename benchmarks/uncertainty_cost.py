@@ -27,10 +27,10 @@ from timing import best_of  # noqa: E402
 
 
 def render(scale: float):
-    from scenes.exact_render import NotExactError, render_view_exact
-    from scenes.noise import SensorNoise
-    from scenes.render import render_view
-    from scenes.specimens import SpeckledPlate
+    from scenes.rendering.exact import NotExactError, render_view_exact
+    from scenes.sensor.noise import SensorNoise
+    from scenes.rendering.mitsuba import render_view
+    from scenes.specimens.plate import SpeckledPlate
     from workbench.experiments.calibration.views import sensor_spec_for
     from workbench.rigs import paper_rig
 

@@ -1,6 +1,6 @@
-"""Cropped, adaptively sampled renders (scenes.adaptive) against full fixed-spp renders of the same scene.
+"""Cropped, adaptively sampled renders (scenes.rendering.adaptive) against full fixed-spp renders of the same scene.
 
-The reference is Mitsuba's own film and stratified sampler (scenes.render.render_view) over the whole sensor:
+The reference is Mitsuba's own film and stratified sampler (scenes.rendering.mitsuba.render_view) over the whole sensor:
 an independent implementation of the pixel integral. Claims: outside the crop the full render is exactly
 background; inside, the two agree to within their Monte-Carlo noise, without bias; the MC noise the adaptive
 render reports is the one two independent renders show; same seed, same image.
@@ -10,9 +10,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from scenes.adaptive import AdaptiveSettings, render_view_adaptive, render_views_adaptive
-from scenes.render import render_view
-from scenes.targets import Checkerboard
+from scenes.rendering.adaptive import AdaptiveSettings, render_view_adaptive, render_views_adaptive
+from scenes.rendering.mitsuba import render_view
+from scenes.surfaces.checkerboard import Checkerboard
 from workbench.experiments.calibration.views import board_outline_mm, sensor_spec_for
 from workbench.poses import random_board_poses
 from workbench.rigs import get_rig
@@ -154,9 +154,9 @@ def test_a_blurred_silhouette_converges_no_worse_than_mitsubas_own_sampler():
     renders at 32 x 32 samples per pixel differ by no more than two 1024-spp renders of Mitsuba's own film
     (independent sampler), and their mean agrees with Mitsuba's within 4 standard errors. A lattice coupling of
     aperture and film strata (q = a k + b mod n) scattered such pixels by ~10x Mitsuba's noise and fails it."""
-    from scenes.defocus_quadrature import fill_defocused_faces
-    from scenes.exact_render import render_view_in_focus
-    from scenes.specimens import SpeckledPlate
+    from scenes.rendering.defocus_quadrature import fill_defocused_faces
+    from scenes.rendering.exact import render_view_in_focus
+    from scenes.specimens.plate import SpeckledPlate
     from workbench.experiments.depth_of_field.run import depth_of_field_scene
 
     scene = depth_of_field_scene(scale=0.2, object_tilt_deg=38.0, seed=0)

@@ -20,8 +20,8 @@ from scipy.special import ndtr
 from measurement.dic import DICSettings, Status, correlate
 from measurement.dic.roi import (AutoRoi, consistency_flags, correlate_auto_roi, estimate_noise_sigma,
                                  expected_zncc_deficit, texture_mask)
-from scenes.noise import apply_sensor_noise
-from scenes.synthetic_images import extent_for_shape, gaussian_speckle
+from scenes.sensor.noise import apply_sensor_noise
+from scenes.image_pairs.gaussian_speckle import extent_for_shape, gaussian_speckle
 
 SHAPE = (256, 256)
 SPECIMEN = (56, 56, 140, 200)      # x0, y0, x1, y1 px: pixel centres x0 <= x < x1 (edges at x0 - 0.5, x1 - 0.5)

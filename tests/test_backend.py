@@ -5,7 +5,7 @@ import sys
 
 import pytest
 
-from scenes import backend
+from scenes.optics.mtf import backend
 
 
 def test_a_usable_libllvm_is_found():

@@ -8,8 +8,8 @@ import cv2
 import numpy as np
 import pytest
 
-from scenes.fields import DisplacementField
-from scenes.truth import project_points
+from scenes.deformation.displacement_field import DisplacementField
+from scenes.optics.projection import project_points
 from workbench.cli import main
 from workbench.experiments.bending.run import reproduce_bending
 from workbench.experiments.bending.scenes import bending_truth, load_bending_truth

@@ -39,7 +39,7 @@ from measurement.calibration.stepwise import (
 from measurement.camera import INTRINSIC_NAMES, ScheimpflugCamera
 from measurement.rigid import apply_rigid, fit_rigid
 from measurement.stereo import fit_plane, triangulate
-from scenes.targets import Checkerboard
+from scenes.surfaces.checkerboard import Checkerboard
 from workbench.experiments.calibration.views import board_outline_mm
 from workbench.poses import random_board_poses
 from workbench.rigs import paper_rig

@@ -22,7 +22,7 @@ from measurement.calibration.bootstrap import (
 from measurement.calibration.detection import board_points_mm
 from measurement.calibration.io import FileFormatError, load_calibration, rig_to_dict, save_calibration, save_rig
 from measurement.calibration.stepwise import calibrate_stereo
-from scenes.targets import Checkerboard
+from scenes.surfaces.checkerboard import Checkerboard
 from workbench.cli import main
 from workbench.experiments.calibration.views import board_outline_mm
 from workbench.poses import random_board_poses

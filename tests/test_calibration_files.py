@@ -27,7 +27,7 @@ from workbench.cli import main
 
 @pytest.fixture(scope="module")
 def synthetic_calibration():
-    from scenes.targets import Checkerboard
+    from scenes.surfaces.checkerboard import Checkerboard
     from workbench.experiments.calibration.views import board_outline_mm
     from workbench.poses import random_board_poses
     from workbench.rigs import paper_rig

@@ -38,8 +38,8 @@ from measurement.calibration.stepwise import (
     lens_comparison_lines,
 )
 from measurement.camera import INTRINSIC_NAMES
-from scenes.targets import Checkerboard
-from scenes.truth import project_points
+from scenes.surfaces.checkerboard import Checkerboard
+from scenes.optics.projection import project_points
 from workbench.cli import main
 from workbench.experiments.calibration.views import board_outline_mm, sensor_spec_for
 from workbench.experiments.rigid_motion.case import TILT_GUESS_DEG, render_calibration_views
@@ -154,7 +154,7 @@ def test_without_k3_brown5_finds_none_and_gains_nothing(fits):
 
 def test_corner_effect_is_what_the_renderer_does(fits):
     """``k3_corner_effect_px`` of the true camera equals the shift the renderer's own projection
-    (:func:`scenes.truth.project_points`, with and without the lens's k3) gives the corner rays; the fitted camera's
+    (:func:`scenes.optics.projection.project_points`, with and without the lens's k3) gives the corner rays; the fitted camera's
     is within its propagated sigma (the effect is linear in k3) of the truth's."""
     rig = get_rig("paper", SCALE)
     cmp = fits[K3_TRUE][2]

@@ -11,7 +11,7 @@ import pytest
 
 from measurement.calibration.detection import board_points_mm
 from measurement.calibration.stepwise import calibrate_camera
-from scenes.targets import Checkerboard
+from scenes.surfaces.checkerboard import Checkerboard
 from workbench.experiments.calibration.views import board_outline_mm
 from workbench.experiments.uncertainty.calibration import GOAL, run_calibration_class
 from workbench.poses import random_board_poses

@@ -68,7 +68,7 @@ from measurement.uncertainty.calibration import (
     common_mode_summary,
     displacement_calibration_covariance_mm2,
 )
-from scenes.targets import Checkerboard
+from scenes.surfaces.checkerboard import Checkerboard
 from workbench.experiments.calibration.views import board_outline_mm
 from workbench.experiments.uncertainty.calibration import specimen_points, true_pixels
 from workbench.poses import random_board_poses

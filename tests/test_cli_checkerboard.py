@@ -7,7 +7,7 @@ import cv2
 import numpy as np
 import pytest
 
-from scenes.truth import project_points
+from scenes.optics.projection import project_points
 from workbench.cli import main
 from workbench.experiments.calibration.views import sensor_spec_for
 from workbench.rigs import get_rig
@@ -23,7 +23,7 @@ def dataset(tmp_path_factory):
 
 def test_truth_json_describes_every_image(dataset):
     """Every image is listed with the rig's intrinsics; its truth pixels are where the *renderer's* projection
-    (scenes.truth.project_points: its own distortion and tilted-sensor code, the camera as rendered) puts the
+    (scenes.optics.projection.project_points: its own distortion and tilted-sensor code, the camera as rendered) puts the
     corners, not merely where the model that wrote them does."""
     out, truth = dataset
     rig = get_rig("paper", 0.2)

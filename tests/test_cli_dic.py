@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from measurement.dic import PARAMETER_NAMES
-from scenes.synthetic_images import fourier_shifted_pair
+from scenes.image_pairs.fourier_shift import fourier_shifted_pair
 from workbench.cli import main
 
 SHIFT_PX = (2.3, -1.7)
@@ -166,7 +166,7 @@ def test_a_full_disk_leaves_no_partial_csv(pair, tmp_path, capsys, monkeypatch):
 def test_dic_static_pair_gives_the_noise(tmp_path, capsys):
     """`workbench dic --static`: the noise measured on the static pair is within 5 % of the 8-bit images' true
     noise (2 grey read + quantisation); a "static" image shifted by 0.8 px is refused, naming --static."""
-    from scenes.noise import SensorNoise
+    from scenes.sensor.noise import SensorNoise
 
     reference, deformed = fourier_shifted_pair((200, 240), 4.0, SHIFT_PX, seed=5, mean_grey=128.0, std_grey=30.0)
     noise = SensorNoise(read_noise_grey=2.0, bit_depth=8)

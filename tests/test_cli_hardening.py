@@ -16,10 +16,10 @@ import pytest
 from measurement.calibration.io import CalibratedRig, export_opencv_yaml
 from measurement.dic import DICSettings, correlate
 from measurement.stereo_dic import StereoQuality, StereoQualityError, check_stereo_quality
-from scenes.noise import SensorNoise
-from scenes.render import render_view
-from scenes.specimens import SpeckledPlate
-from scenes.synthetic_images import fourier_shifted_pair
+from scenes.sensor.noise import SensorNoise
+from scenes.rendering.mitsuba import render_view
+from scenes.specimens.plate import SpeckledPlate
+from scenes.image_pairs.fourier_shift import fourier_shifted_pair
 from workbench.cli import main
 from workbench.experiments.calibration.views import sensor_spec_for
 from workbench.manifest import MANIFEST_NAME, PENDING_NAME, complete_manifest
@@ -370,7 +370,7 @@ def board_images(tmp_path):
 def synthetic_calibration():
     from measurement.calibration.detection import board_points_mm
     from measurement.calibration.stepwise import calibrate_stereo
-    from scenes.targets import Checkerboard
+    from scenes.surfaces.checkerboard import Checkerboard
     from workbench.experiments.calibration.views import board_outline_mm
     from workbench.poses import random_board_poses
 

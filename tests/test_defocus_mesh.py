@@ -1,5 +1,5 @@
-"""Thin-lens defocus of curved meshes without Monte Carlo (scenes.defocus_mesh through
-scenes.defocus_quadrature.fill_defocused_faces) against converged Mitsuba and a textbook ray tracing.
+"""Thin-lens defocus of curved meshes without Monte Carlo (scenes.rendering.defocus_mesh through
+scenes.rendering.defocus_quadrature.fill_defocused_faces) against converged Mitsuba and a textbook ray tracing.
 
 The scene is the depth-of-field experiment's at 0.2 scale (an untilted sensor at f/4 on a plate at 38°, blur
 circles up to ~3.5 px), the plate tessellated into 24 x 16 quads and bent into a parabolic cylinder that bulges
@@ -12,11 +12,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from scenes.defocus_mesh import edge_neighbours, integrate_pixels, smooth_components, triangle_table
-from scenes.defocus_quadrature import fill_defocused_faces, thin_lens_rule
-from scenes.exact_render import render_view_in_focus
-from scenes.render import render_view
-from scenes.surfaces import TexturedSurface
+from scenes.rendering.defocus_mesh import edge_neighbours, integrate_pixels, smooth_components, triangle_table
+from scenes.rendering.defocus_quadrature import fill_defocused_faces
+from scenes.rendering.defocus_rules import thin_lens_rule
+from scenes.rendering.exact import render_view_in_focus
+from scenes.rendering.mitsuba import render_view
+from scenes.surfaces.textured_surface import TexturedSurface
 from test_defocus_quadrature import RENDER_ERROR_GREY, _reference_pixels, _systematic_grey
 
 SAG_MM = 2.0
@@ -63,8 +64,8 @@ def test_a_bent_defocused_plate_equals_converged_mitsuba_within_0p1_grey(bent_vi
     assert info["defocus_groups"] == 0 and info["defocus_patches"] == 1
     assert made.sum() >= 0.99 * made.size
     assert _systematic_grey(image, halves, made) <= RENDER_ERROR_GREY
-    from scenes.truth import defocus_blur_px
-    from scenes.ray_surface import cast_rays
+    from scenes.optics.projection import defocus_blur_px
+    from scenes.specimens.ray_surface import cast_rays
 
     hits = cast_rays(spec, *pose, surface.vertices_mm, surface.faces)
     r, c = np.nonzero(made)
@@ -92,9 +93,9 @@ def test_the_walk_equals_a_textbook_ray_tracing_of_the_same_rule_within_1e_6_gre
     """Geometry of the walk: on 300 pixels, one rule (3 pixel nodes x 4 rings) by the kernel and by a float64
     numpy Moller-Trumbore test of every node's ray against every triangle differ by <= 1e-6 grey. A walk that
     stopped on the wrong triangle, a wrong barycentric dual basis or texel map would fail it."""
-    from scenes.exact_render import sensor_corner_coordinates
-    from scenes.ray_surface import cast_rays
-    from scenes.truth import tilted_sensor_axes
+    from scenes.rendering.exact import sensor_corner_coordinates
+    from scenes.specimens.ray_surface import cast_rays
+    from scenes.optics.projection import tilted_sensor_axes
 
     scene, surface, spec, pose, _ = bent_views
     rng = np.random.default_rng(7)
@@ -123,9 +124,9 @@ def test_the_walk_equals_a_textbook_ray_tracing_of_the_same_rule_within_1e_6_gre
 def test_a_walk_that_leaves_the_patch_gives_nan():
     """Two triangles of a unit square 100 mm in front of a pinhole-like thin lens: a pixel whose rays all land in
     the square is made, one whose rays cross the square's edge is NaN (left for Mitsuba), not a clamped value."""
-    from scenes.camera import SensorSpec
-    from scenes.exact_render import sensor_corner_coordinates
-    from scenes.truth import tilted_sensor_axes
+    from scenes.optics.camera import SensorSpec
+    from scenes.rendering.exact import sensor_corner_coordinates
+    from scenes.optics.projection import tilted_sensor_axes
 
     # image distance 400 px x 0.0625 mm = 25 mm: a 20 mm lens focused at 100 mm, where a pixel covers 0.25 mm
     spec = SensorSpec(fx=400.0, fy=400.0, cx=19.5, cy=19.5, width=40, height=40, lens="thin", focal_length_mm=20.0,
@@ -187,8 +188,8 @@ def test_a_face_behind_the_patch_hides_nothing_and_one_in_front_is_kept_clear_of
     the walk made alone made, bit for bit (its depth is behind the patch along every chief ray); a small plate
     10 mm in front of the patch's middle is an occluder: no pixel within 1 px of its projected outline is made
     by quadrature (its blurred edge is Mitsuba's)."""
-    from scenes.specimens import SpeckledPlate
-    from scenes.truth import project_points
+    from scenes.specimens.plate import SpeckledPlate
+    from scenes.optics.projection import project_points
 
     scene, surface, spec, pose, _ = bent_views
     n = np.asarray(scene.R_world_from_plate)[:, 2]                  # plate normal (+z: away from the camera)

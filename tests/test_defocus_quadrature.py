@@ -1,4 +1,4 @@
-"""Thin-lens defocus without Monte Carlo (scenes.defocus_quadrature) against converged Mitsuba thin-lens renders.
+"""Thin-lens defocus without Monte Carlo (scenes.rendering.defocus_quadrature) against converged Mitsuba thin-lens renders.
 
 The scene is the depth-of-field experiment's at 0.2 scale: a speckled plate at 38° seen by an untilted sensor
 through a thin lens at f/4, in focus on one column and blurred up to a ~3.5 px circle at the sides. The
@@ -12,10 +12,11 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from scenes.defocus_quadrature import (DEFAULT_TOLERANCE_GREY, choose_rule, fill_defocused_faces, rule_size, texture_detail_texels,
-                                       thin_lens_rule)
-from scenes.exact_render import render_view_in_focus
-from scenes.render import render_view
+from scenes.rendering.defocus_rules import (DEFAULT_TOLERANCE_GREY, choose_rule, rule_size, texture_detail_texels,
+                                            thin_lens_rule)
+from scenes.rendering.defocus_quadrature import fill_defocused_faces
+from scenes.rendering.exact import render_view_in_focus
+from scenes.rendering.mitsuba import render_view
 
 #: The issue's bound on a deterministic render's error against converged Mitsuba, grey RMS.
 RENDER_ERROR_GREY = 0.1
@@ -53,7 +54,7 @@ def test_a_defocused_plate_equals_converged_mitsuba_within_0p1_grey(plate_views)
     assert max(b["error_grey"] for b in info["defocus_bins"]) <= DEFAULT_TOLERANCE_GREY + 1e-12
     everything = np.ones(image.shape, dtype=bool)
     assert _systematic_grey(image, halves, everything) <= RENDER_ERROR_GREY
-    from scenes.truth import defocus_blur_px, pixel_rays
+    from scenes.optics.projection import defocus_blur_px, pixel_rays
 
     cols = np.arange(image.shape[1])
     rays = pixel_rays(spec, *pose, np.column_stack([cols, np.full(cols.size, image.shape[0] // 2)]))
@@ -83,7 +84,7 @@ def test_a_wrong_blur_radius_misses_mitsuba_by_more_than_the_bound(plate_views):
 def test_pixels_whose_blur_reaches_past_the_face_are_left_for_mitsuba(plate_views):
     """A plate smaller than the view: pixels whose blur circle (+ margin) reaches its edge stay unknown and 0,
     pixels off the plate too; the ones made inside equal Mitsuba within 0.1 grey."""
-    from scenes.specimens import SpeckledPlate
+    from scenes.specimens.plate import SpeckledPlate
 
     scene, _, spec, pose, _ = plate_views
     p = scene.plate
@@ -106,8 +107,8 @@ def test_rules_integrate_constants_and_the_chosen_rule_meets_its_tolerance_again
     """Every rule's weights sum to 1 (a constant texture is exact); the rule ``choose_rule`` picks for a 4 px
     blur of a 5 px speckle errs by at most 1.5x the tolerance against an independent rule with ~10x the nodes
     of its own dense rule (the selection measures against the dense rule, this checks that rule too)."""
-    from scenes.defocus_quadrature import _model_values
-    from scenes.speckle import speckle_pattern
+    from scenes.rendering.defocus_rules import _model_values
+    from scenes.surfaces.speckle import speckle_pattern
 
     for sizes in [(2, 1, 1), (3, 4, 7), (6, 2, 5)]:
         rule = thin_lens_rule(*sizes)
@@ -140,9 +141,9 @@ def test_a_pinhole_or_a_known_view_is_returned_unchanged(plate_views):
 
 def _reference_pixels(spec, surface, rows, cols, rule, exposure_grey):
     """The rule, evaluated the textbook way in float64 (numpy): per node, the ray from the aperture point
-    through the sub-pixel's focus point (scenes.truth), its hit on the mesh's triangles, the hit's
+    through the sub-pixel's focus point (scenes.optics.projection), its hit on the mesh's triangles, the hit's
     barycentric texture coordinates, Mitsuba's bilinear lookup with clamping. Camera at the world origin."""
-    from scenes.truth import in_focus_points_world_mm
+    from scenes.optics.projection import in_focus_points_world_mm
 
     A_mm = 0.5 * spec.focal_length_mm / spec.f_number
     tex = np.asarray(surface.texture, dtype=np.float64)
@@ -191,9 +192,9 @@ def test_the_float32_kernel_equals_a_float64_ray_tracing_of_the_same_rule_within
     3 rings) evaluated by the float32 kernel and by a float64 numpy ray tracing of the same nodes against the
     plate's triangles differ by at most 0.002 grey. A float32 evaluation at absolute texel positions (~10^-3
     texel at 10^4 texels), a wrong plane, texel map or focus point would fail it."""
-    from scenes.defocus_quadrature import _affine_texel_map, _integrate_pixels, _node_table
-    from scenes.exact_render import sensor_corner_coordinates
-    from scenes.truth import tilted_sensor_axes
+    from scenes.rendering.defocus_quadrature import _affine_texel_map, _integrate_pixels, _node_table
+    from scenes.rendering.exact import sensor_corner_coordinates
+    from scenes.optics.projection import tilted_sensor_axes
 
     scene, surface, spec, pose, _ = plate_views
     rng = np.random.default_rng(5)
@@ -222,8 +223,8 @@ def test_skipping_sharp_face_groups_changes_no_pixel(monkeypatch):
     nothing: the bending beam's views (sharp front face, reference and loaded) and the depth-of-field scene's
     tilted camera (whose ring the quadrature fills: 1 800 px at this scale) give the same pixels with the skip
     forced off."""
-    import scenes.defocus_quadrature as dq
-    from scenes.exact_render import render_view_in_focus
+    import scenes.rendering.defocus_quadrature as dq
+    from scenes.rendering.exact import render_view_in_focus
     from workbench.experiments.bending.scenes import bending_truth
     from workbench.experiments.depth_of_field.run import depth_of_field_scene
     from workbench.rigs import get_rig

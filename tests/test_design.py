@@ -70,7 +70,7 @@ def test_bad_design_files_are_refused_naming_the_key(tmp_path, text, match):
 # ------------------------------------------------------------------------------------------------------------
 # geometry: the hinge rule
 def _in_focus_depth_by_hand(cand, side, pixels):
-    """The thin lens written out independently of scenes.truth: a sensor point at v p_z behind the lens images
+    """The thin lens written out independently of scenes.optics.projection: a sensor point at v p_z behind the lens images
     depth 1 / (1/F - 1/(v p_z)) on its chief ray; returns those points in the specimen frame."""
     spec = cand.specs[side]
     a, b = math.radians(spec.alpha_deg), math.radians(spec.beta_deg)

@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 
 from measurement.calibration.detection import board_points_mm, detect_checkerboard
-from scenes.targets import Checkerboard
+from scenes.surfaces.checkerboard import Checkerboard
 from workbench.experiments.calibration.views import board_outline_mm, render_board_views
 from workbench.poses import random_board_poses
 

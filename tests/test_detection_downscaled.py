@@ -10,7 +10,7 @@ import pytest
 from scipy.special import erf
 
 from measurement.calibration.detection import DETECT_MAX_SIDE_PX, detect_checkerboard, saddle_points
-from scenes.targets import Checkerboard
+from scenes.surfaces.checkerboard import Checkerboard
 from workbench.experiments.calibration.views import board_outline_mm, render_board_views
 from workbench.poses import random_board_poses
 from workbench.rigs import get_rig

@@ -15,9 +15,10 @@ from measurement.dic import DICSettings, PoiGrid, Status, correlate, poi_grid
 from measurement.dic.bspline import interpolate, prefilter
 from measurement.dic.grid import interpolation_margin_px
 from measurement.dic.shape_functions import compose_inverse, warp_points
-from scenes.noise import apply_sensor_noise
-from scenes.synthetic_images import (HomogeneousStrain, QuadraticField, Rotation, Translation, extent_for_shape,
-                                     fourier_shifted_pair, gaussian_speckle)
+from scenes.sensor.noise import apply_sensor_noise
+from scenes.image_pairs.analytic_fields import HomogeneousStrain, QuadraticField, Rotation, Translation
+from scenes.image_pairs.gaussian_speckle import extent_for_shape, gaussian_speckle
+from scenes.image_pairs.fourier_shift import fourier_shifted_pair
 
 SHIFTS_PX = np.round(np.arange(0.0, 1.01, 0.1), 10)
 

@@ -8,10 +8,10 @@ import numpy as np
 import pytest
 
 from measurement.dic import DICSettings, correlate
-from scenes.camera import SensorSpec
-from scenes.noise import SensorNoise
-from scenes.render import render_view
-from scenes.specimens import SpeckledPlate
+from scenes.optics.camera import SensorSpec
+from scenes.sensor.noise import SensorNoise
+from scenes.rendering.mitsuba import render_view
+from scenes.specimens.plate import SpeckledPlate
 
 W = H = 192
 FX = 2000.0

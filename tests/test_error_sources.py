@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 from measurement.stereo import triangulate
-from scenes.drift import CameraDrift, drifted_pose
-from scenes.truth import project_points
+from scenes.sensor.drift import CameraDrift, drifted_pose
+from scenes.optics.projection import project_points
 from workbench.config import with_value
 from workbench.experiments.rigid_motion import case as rigid_motion_case
 from workbench.experiments.rigid_motion.run import measure_rigid_motion

@@ -1,4 +1,4 @@
-"""The exact polygon renderer (scenes.exact_render) against independent references.
+"""The exact polygon renderer (scenes.rendering.exact) against independent references.
 
 Claims:
 * the coverage raster equals, to 1e-12 px^2 per pixel, an independent computation (each pixel's square clipped
@@ -27,10 +27,12 @@ import json
 import numpy as np
 import pytest
 
-from scenes.coverage_raster import accumulate_polygons
-from scenes.exact_render import NotExactError, render_view_exact
-from scenes.render import render_view
-from scenes.targets import CharucoBoard, Checkerboard, DotGrid
+from scenes.rendering.coverage_raster import accumulate_polygons
+from scenes.rendering.exact import NotExactError, render_view_exact
+from scenes.rendering.mitsuba import render_view
+from scenes.surfaces.charuco import CharucoBoard
+from scenes.surfaces.checkerboard import Checkerboard
+from scenes.surfaces.dot_grid import DotGrid
 from workbench.experiments.calibration.views import (board_outline_mm, render_board_views, sensor_spec_for,
                                                       write_checkerboard_dataset)
 from workbench.poses import random_board_poses
@@ -165,7 +167,7 @@ def test_the_board_pipeline_records_its_renderer_and_falls_back_to_mitsuba(rig, 
     saved = json.loads((tmp_path / "auto" / "truth.json").read_text())
     assert saved["render"]["renderers"] == {"exact-polygon": 4}
 
-    import scenes.exact_render as exact_render
+    import scenes.rendering.exact as exact_render
 
     def refuse(*args, **kwargs):
         raise NotExactError("pretend occlusion")
@@ -212,7 +214,7 @@ def test_quadrature_speckle_equals_converged_mitsuba_within_0p1_grey(beam_state,
     """RMS(quadrature - mean of two 256-spp Mitsuba renders) <= sqrt(noise^2 + 0.1^2) over the lit pixels, the
     noise being the mean's Monte-Carlo error (from the two renders' difference); mean difference within 4
     standard errors of zero. Point sampling (one node per pixel) must miss the same bound."""
-    from scenes.exact_render import closed_surface
+    from scenes.rendering.exact import closed_surface
 
     truth, surfaces = beam_state
     spec, pose = truth.specs[side], truth.camera_poses[side]
@@ -271,7 +273,7 @@ def test_in_focus_pixels_of_a_thin_lens_equal_converged_mitsuba_within_0p1_grey(
     the front face is in focus, blur circle <= 0.01 px) differ from the mean of two 256-spp Mitsuba thin-lens
     renders by RMS <= sqrt(noise^2 + 0.1^2) grey, mean within 4 standard errors; the pixels it leaves to Mitsuba
     are the silhouette and the end faces."""
-    from scenes.exact_render import render_view_in_focus
+    from scenes.rendering.exact import render_view_in_focus
 
     truth, surfaces = thin_bending_state
     spec, pose = truth.specs[side], truth.camera_poses[side]
@@ -304,7 +306,7 @@ def test_a_defocused_plate_is_left_to_mitsuba_and_the_blur_limit_is_what_keeps_i
     """The untilted camera sees the plate defocused: no plate pixel is known at the 0.1 px blur limit. Lifting
     the limit (every face drawn as sharp) makes the pinhole-sharp image of a blurred plate, which misses the
     converged thin-lens render by far more than 0.1 grey: the limit is what keeps the bound."""
-    from scenes.exact_render import render_view_in_focus
+    from scenes.rendering.exact import render_view_in_focus
 
     scene, surfaces = oblique_plate
     spec, pose = scene.specs["conventional"], (np.eye(3), np.zeros(3))
@@ -321,10 +323,11 @@ def test_a_defocused_plate_is_left_to_mitsuba_and_the_blur_limit_is_what_keeps_i
 
 def test_thin_lens_views_made_with_as_little_monte_carlo_as_the_optics_allow_equal_mitsuba(oblique_plate):
     """``render_views_auto`` on the oblique plate: the tilted camera in focus, the untilted one's blurred plate by
-    quadrature over the pixel and the aperture (scenes.defocus_quadrature): no Monte Carlo in either. Each whole
+    quadrature over the pixel and the aperture (scenes.rendering.defocus_quadrature): no Monte Carlo in either. Each whole
     image equals the converged thin-lens render within sqrt(reference noise^2 + 0.1^2) grey RMS, with no bias."""
-    from scenes.adaptive import AdaptiveSettings, render_views_auto
-    from scenes.defocus_quadrature import DEFAULT_TOLERANCE_GREY, RENDERER_DEFOCUS
+    from scenes.rendering.adaptive import AdaptiveSettings, render_views_auto
+    from scenes.rendering.defocus_rules import DEFAULT_TOLERANCE_GREY
+    from scenes.rendering.defocus_quadrature import RENDERER_DEFOCUS
 
     scene, surfaces = oblique_plate
     views = [(scene.specs[n], (np.eye(3), np.zeros(3))) for n in ("scheimpflug", "conventional")]
@@ -345,7 +348,7 @@ def test_the_speckle_pipeline_renders_thin_lenses_in_focus_first_when_adaptive(t
     in-focus path, its blurred flat faces by quadrature and the rest (silhouette) by Mitsuba (its images say so,
     with the share of pixels made without Monte Carlo, most of them here); the dataset hash carries the renderer
     (other images, other hash)."""
-    from scenes.defocus_quadrature import RENDERER_THIN_LENS_ADAPTIVE
+    from scenes.rendering.defocus_quadrature import RENDERER_THIN_LENS_ADAPTIVE
     from workbench.experiments.rigid_motion.scenes import load_truth, render_rigid_motion, speckle_render_content
 
     render_rigid_motion("scheimpflug", tmp_path / "thin", scale=0.1, lens="thin", states=[0.0], progress=False,
@@ -362,10 +365,10 @@ def test_the_speckle_pipeline_renders_thin_lenses_in_focus_first_when_adaptive(t
 def tube_state():
     """The catalog's pressurised tube (hollow: its far wall is hidden behind the near one) at 6 MPa, painted by a
     wrapped sheet, paper rig at 0.15 scale, pinhole."""
-    from scenes.fe_catalog import pressurised_cylinder
-    from scenes.mesh_specimen import MeshSpecimen
-    from scenes.paint import Paint
-    from scenes.surface_mesh import SurfaceMesh
+    from scenes.specimens.catalog import pressurised_cylinder
+    from scenes.specimens.mesh_specimen import MeshSpecimen
+    from scenes.surfaces.paint import Paint
+    from scenes.specimens.surface_mesh import SurfaceMesh
     from workbench.experiments.rigid_motion.scenes import specimen_reference_pose
 
     rig = get_rig("paper", 0.15)
@@ -384,10 +387,10 @@ def tube_state():
 def coupon_state():
     """The catalog's notched coupon at its highest load (its Coons-patch elements beside the notches make long thin
     flat pieces, seen past the notch's bore), paper rig at 0.15 scale, pinhole."""
-    from scenes.fe_catalog import notched_coupon
-    from scenes.mesh_specimen import MeshSpecimen
-    from scenes.paint import Paint
-    from scenes.surface_mesh import SurfaceMesh
+    from scenes.specimens.catalog import notched_coupon
+    from scenes.specimens.mesh_specimen import MeshSpecimen
+    from scenes.surfaces.paint import Paint
+    from scenes.specimens.surface_mesh import SurfaceMesh
     from workbench.experiments.rigid_motion.scenes import specimen_reference_pose
 
     rig = get_rig("paper", 0.15)
@@ -409,7 +412,7 @@ def test_occluded_views_are_exact_off_the_occluding_edges(request, scene, side):
     and there equals the mean of two 256-spp Mitsuba renders
     within sqrt(noise^2 + 0.1^2) grey RMS, mean within 4 standard errors (the coupon's long thin pieces beside the
     notches, covering no pixel centre, were once dropped as hidden: dark wedges of ~40 grey)."""
-    from scenes.exact_render import render_view_occluded
+    from scenes.rendering.exact import render_view_occluded
 
     views, surfaces = request.getfixturevalue(scene)
     spec, pose = views[side]

@@ -6,10 +6,10 @@ import numpy as np
 import pytest
 import trimesh
 
-from scenes.fe_catalog import notched_coupon, plate_with_hole, pressurised_cylinder, write_pvd
-from scenes.fe_files import read_specimen_file
-from scenes.fields import FEMeshField
-from scenes.surface_mesh import SurfaceMesh
+from scenes.specimens.catalog import notched_coupon, plate_with_hole, pressurised_cylinder, write_pvd
+from scenes.specimens.fe_files import read_specimen_file
+from fe_reference import FEMeshField
+from scenes.specimens.surface_mesh import SurfaceMesh
 
 
 def _volume(result) -> float:

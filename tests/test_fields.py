@@ -1,4 +1,4 @@
-"""Displacement fields (scenes/fields.py): interface, the three-point-bending FE truth, user FE meshes."""
+"""Displacement fields (scenes/deformation/beam_bending.py): interface, the three-point-bending FE truth, user FE meshes."""
 from __future__ import annotations
 
 import time
@@ -7,12 +7,13 @@ import meshio
 import numpy as np
 import pytest
 
-from scenes.fields import (
-    DifferenceField, FEMeshField, RigidMotionField, ScaledField, ThreePointBending, beam_theory_bending_moment_Nmm,
-    beam_theory_outer_fibre_strain, check_covers_face, fe_midspan_deflection_mm, section_resultants,
-    solve_three_point_bending, three_point_bending_field, three_point_bending_report,
-    timoshenko_midspan_deflection_mm, timoshenko_shear_coefficient,
-)
+from scenes.deformation.displacement_field import DifferenceField, RigidMotionField, ScaledField
+from fe_reference import FEMeshField, check_covers_face
+from scenes.deformation.beam_bending import (ThreePointBending, beam_theory_bending_moment_Nmm,
+                                             beam_theory_outer_fibre_strain, fe_midspan_deflection_mm,
+                                             section_resultants, solve_three_point_bending, three_point_bending_field,
+                                             three_point_bending_report, timoshenko_midspan_deflection_mm,
+                                             timoshenko_shear_coefficient)
 
 L, H, T = 120.0, 30.0, 10.0
 
@@ -62,7 +63,7 @@ def test_rigid_motion_field_is_exact_and_strain_free(rng):
 
 
 def test_fields_are_callables_for_bending_specimen_surfaces(beam_coarse):
-    from scenes.specimens import BendingSpecimen
+    from scenes.specimens.beam import BendingSpecimen
 
     spec = BendingSpecimen(texel_mm=0.5, speckle_mm=1.0, grid_mm=10.0)
     tex = np.zeros(spec.texture_shape, dtype=np.float32)
@@ -99,7 +100,7 @@ def test_fe_stiffness_equals_scikit_fem_linear_elasticity():
     from skfem import Basis, ElementHex2, ElementVector, MeshHex, asm
     from skfem.models.elasticity import lame_parameters, linear_elasticity
 
-    from scenes.fields import _elasticity_matrix
+    from scenes.deformation.beam_bending import _elasticity_matrix
 
     m = MeshHex.init_tensor(np.array([0.0, 1.0, 2.5]), np.array([0.0, 2.0]), np.array([0.0, 0.7]))
     lam, mu = lame_parameters(70_000.0, 0.33)
@@ -453,7 +454,7 @@ def _tet10(points, tets):
 
 def _hex27(n, lo, hi):
     """Hexahedron27 cells (VTK order) on a box: a (2n+1)-node grid, as the exporter builds it."""
-    from scenes.fields import _REFERENCE
+    from scenes.deformation.fe_elements import REFERENCE_ELEMENTS as _REFERENCE
 
     P = _grid_nodes(tuple(2 * k for k in n), lo, hi).reshape(-1, 3)
     G = np.array([2 * k + 1 for k in n])

@@ -4,7 +4,7 @@ import pytest
 from scipy import ndimage
 
 from measurement.image_quality import gradient_magnitude, mean_intensity_gradient
-from scenes.speckle import speckle_pattern
+from scenes.surfaces.speckle import speckle_pattern
 
 
 def test_linear_ramp_gives_its_slope():

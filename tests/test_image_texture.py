@@ -1,9 +1,9 @@
-"""scenes.image_texture: a photographed image as a continuous texture, moved in the image plane and painted on a
+"""scenes.surfaces.image_texture: a photographed image as a continuous texture, moved in the image plane and painted on a
 plane seen through a rig.
 
 References are analytic: smooth functions sampled by hand, and plane points found by an independent ray-plane
 intersection built on measurement.camera.ScheimpflugCamera's back-projection (the instrument's camera model,
-not scenes.truth's rays that the module itself uses).
+not scenes.optics.projection's rays that the module itself uses).
 """
 from __future__ import annotations
 
@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 
 from measurement.camera import ScheimpflugCamera
-from scenes.camera import SensorSpec
-from scenes.image_texture import ImageTexture, TexturedPlane, render_deformed_image, render_plane_view
+from scenes.optics.camera import SensorSpec
+from scenes.surfaces.image_texture import ImageTexture, TexturedPlane, render_deformed_image, render_plane_view
 
 
 # ------------------------------------------------------------------------------------------------------------

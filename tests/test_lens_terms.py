@@ -11,11 +11,11 @@ import cv2
 import numpy as np
 import pytest
 
-import scenes.truth as truth
-from scenes.backend import mi
-from scenes.camera import EXTRA_LENS_TERMS, UNDISTORT_ITERATIONS, SensorSpec, sensor_dict
-from scenes.render import render_view
-from scenes.targets import Checkerboard
+import scenes.optics.projection as truth
+from scenes.optics.backend import mi
+from scenes.optics.camera import EXTRA_LENS_TERMS, UNDISTORT_ITERATIONS, SensorSpec, sensor_dict
+from scenes.rendering.mitsuba import render_view
+from scenes.surfaces.checkerboard import Checkerboard
 
 #: A wide-angle camera (image corners at r ~ 0.5 in normalised units) with every lens term on, at
 #: magnitudes the SensorSpec docstring calls realistic (k3 ~ 1, |s_i| ~ 1e-3).
@@ -116,7 +116,7 @@ def test_plugin_undistortion_converges_to_float32_resolution():
 def test_rendered_truth_positions_project_back_onto_their_pixels():
     """160 x 120 px, fx = 200 px (corners at r = 0.5), k3 = 2 (3.1 px at the corners) and thin prism
     (~1.5 px), tilted sensor: the footprint-averaged world position of each pixel, projected with
-    ``scenes.truth.project_points``, lands on that pixel's centre: mean |residual| < 0.01 px.
+    ``scenes.optics.projection.project_points``, lands on that pixel's centre: mean |residual| < 0.01 px.
 
     With 8 x 8 stratified samples the sample centroid wanders from the pixel centre by
     sigma = 1 / (spp sqrt(12)) = 0.0045 px per axis: max < 8 sigma, rms < 1.5 sigma, mean offset < 0.2
@@ -194,7 +194,7 @@ def test_instrument_without_thin_prism_misses_by_the_hand_computed_prism_term():
 # ------------------------------------------------------------------------------------------------------------
 # Defaults unchanged
 def _brown_distort_before(xy_n, spec):
-    """``scenes.truth.distort`` as it was before k3 and the thin prism (verbatim), the reference for 'unchanged'."""
+    """``scenes.optics.projection.distort`` as it was before k3 and the thin prism (verbatim), the reference for 'unchanged'."""
     x, y = xy_n[:, 0], xy_n[:, 1]
     r2 = x * x + y * y
     radial = 1.0 + r2 * (spec.k1 + spec.k2 * r2)
@@ -204,7 +204,7 @@ def _brown_distort_before(xy_n, spec):
 
 
 def _brown_undistort_before(xy_d, spec):
-    """``scenes.truth.undistort`` as it was before (verbatim, constants inlined)."""
+    """``scenes.optics.projection.undistort`` as it was before (verbatim, constants inlined)."""
     xd, yd = xy_d[:, 0], xy_d[:, 1]
     xn, yn = xd.copy(), yd.copy()
     for _ in range(100):

@@ -13,8 +13,8 @@ from measurement.dic import DICSettings, correlate
 from measurement.speckle_quality import NoiseModel
 from measurement.uncertainty.match import (FLAG_NONE, FLAG_RESIDUAL, dic_uncertainty, match_uncertainty,
                                            noise_from_residuals, reference_subsets)
-from scenes.noise import apply_sensor_noise
-from scenes.synthetic_images import fourier_shifted_pair
+from scenes.sensor.noise import apply_sensor_noise
+from scenes.image_pairs.fourier_shift import fourier_shifted_pair
 
 SHIFT = (0.3, 0.45)
 ROI = (40, 40, 160, 160)
@@ -174,7 +174,7 @@ def test_a_saturated_region_gets_no_sigma_and_says_why():
 
 # ---------------------------------------------------------------------------------------------------------------
 # A target that is not a repeat of the reference's view: blurred, compressed, magnified (the other camera of a
-# stereo rig). Reference: exact Gaussian-blob speckle (scenes.synthetic_images), the target the same blobs
+# stereo rig). Reference: exact Gaussian-blob speckle (scenes.image_pairs.gaussian_speckle), the target the same blobs
 # Gaussian-blurred (their widths grow, their heights fall to keep their integral) and scaled about the centre,
 # re-noised per seed; the claims as above.
 # ---------------------------------------------------------------------------------------------------------------
@@ -184,8 +184,8 @@ _CROSS_ROI = (50, 50, 170, 170)
 
 
 def _other_view_pair(blur_px, scale, shift=(0.3, 0.45), speckle_px=4.0):
-    from scenes.synthetic_images import (GaussianSpeckle, extent_for_shape, gaussian_speckle,
-                                         radius_for_speckle_size)
+    from scenes.image_pairs.gaussian_speckle import (GaussianSpeckle, extent_for_shape, gaussian_speckle,
+                                                     radius_for_speckle_size)
 
     pattern = gaussian_speckle(extent_for_shape(_CROSS_SHAPE, 60), radius_for_speckle_size(speckle_px), seed=1,
                                mean_grey=120, std_grey=30)

@@ -2,7 +2,7 @@
 pixel rays against the surface, and the generic path against the built-in beam.
 
 Every reference is independent of the code under test: trimesh's volume and ray intersector, meshio's readers,
-analytic surfaces and polynomials, and the built-in beam's own truth (:mod:`scenes.truth`)."""
+analytic surfaces and polynomials, and the built-in beam's own truth (:mod:`scenes.optics.projection`)."""
 from __future__ import annotations
 
 import warnings
@@ -14,11 +14,12 @@ import skfem
 import trimesh
 from skfem.io.meshio import to_meshio
 
-from scenes.fe_files import SpecimenFileError, read_specimen_file, write_exodus
-from scenes.mesh_specimen import BACK_SIDE, HIDDEN, NO_SURFACE, UNPAINTED, MeshSpecimen
-from scenes.paint import Paint, layout
-from scenes.ray_surface import cast_rays, refine_on_surface
-from scenes.surface_mesh import FACE_ELEMENTS, MeshError, SurfaceMesh
+from scenes.specimens.fe_files import SpecimenFileError, read_specimen_file, write_exodus
+from scenes.specimens.mesh_specimen import BACK_SIDE, HIDDEN, NO_SURFACE, UNPAINTED, MeshSpecimen
+from scenes.surfaces.paint import Paint, layout
+from scenes.specimens.ray_surface import cast_rays, refine_on_surface
+from scenes.specimens.face_elements import FACE_ELEMENTS
+from scenes.specimens.surface_mesh import MeshError, SurfaceMesh
 
 BOX = (np.linspace(0, 20, 3), np.linspace(0, 10, 3), np.linspace(0, 5, 2))
 
@@ -26,7 +27,7 @@ BOX = (np.linspace(0, 20, 3), np.linspace(0, 10, 3), np.linspace(0, 5, 2))
 def _box(kind: str) -> meshio.Mesh:
     """A 20 x 10 x 5 mm box of ``kind`` cells: scikit-fem's linear meshes through its meshio converter; the
     quadratic ones get their extra nodes at the linear cell's map of the VTK reference positions (deduplicated)."""
-    from scenes.fields import REFERENCE_ELEMENTS
+    from scenes.deformation.fe_elements import REFERENCE_ELEMENTS
 
     if kind == "wedge":          # triangles of the x-y grid extruded over z
         tri = skfem.MeshTri.init_tensor(*BOX[:2])
@@ -282,7 +283,7 @@ def _camera(scale=0.1):
 def test_ray_cast_matches_trimesh_ray_intersector():
     """Every pixel ray of a 246 x 206 view against a tetra box: the same nearest triangle and hit point (1e-9 mm)
     as trimesh's own ray-triangle intersector, and misses where it misses."""
-    from scenes.ray_surface import pixel_centre_rays
+    from scenes.specimens.ray_surface import pixel_centre_rays
 
     rig, cams = _camera(0.1)
     spec, Rc, tc = cams["left"]
@@ -344,8 +345,8 @@ def test_beam_through_the_generic_path_equals_the_built_in_path():
     """The FE beam read as a volume mesh, painted with the built-in texture: the material points of the left
     reference pixels and their images in both cameras in every state equal the built-in truth to 1e-6 px; the
     exact renders agree to well under Monte-Carlo noise (0.05 grey RMS; Mitsuba at 64 spp is ~1 grey)."""
-    from scenes.exact_render import render_view_exact
-    from scenes.fields import solve_three_point_bending
+    from scenes.rendering.exact import render_view_exact
+    from scenes.deformation.beam_bending import solve_three_point_bending
     from workbench.experiments.bending.scenes import bending_truth
     from workbench.rigs import get_rig
 

@@ -1,6 +1,6 @@
 """Model selection (``--model auto``, ``--lens auto``), term significance, single-camera calibration files and CLI.
 
-The synthetic corners are projected by the truth side (:func:`scenes.truth.project_points`, its own implementation of
+The synthetic corners are projected by the truth side (:func:`scenes.optics.projection.project_points`, its own implementation of
 the camera) from a rig whose tilt is known to be there (the paper's Table 1, 4.5 deg) or known to be absent (the same
 rig with alpha = beta = 0); the real corners are OpenCV's 640 x 480 stereo sample (nominally untilted cameras).
 """
@@ -20,8 +20,8 @@ from measurement.calibration.io import FileFormatError, load_camera_calibration,
 from measurement.calibration.model_selection import (cross_validate, select_model, significance_lines,
                                                      term_significance)
 from measurement.calibration.stepwise import CalibrationError, calibrate_stereo
-from scenes.targets import Checkerboard
-from scenes.truth import project_points
+from scenes.surfaces.checkerboard import Checkerboard
+from scenes.optics.projection import project_points
 from workbench.cli import main
 from workbench.experiments.calibration.views import board_outline_mm, sensor_spec_for
 from workbench.poses import random_board_poses

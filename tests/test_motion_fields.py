@@ -1,8 +1,8 @@
 """The rigid-motion test's stage as displacement fields: the same truth as the translated poses."""
 import numpy as np
 
-from scenes.motion import stage_fields, stage_poses, stage_states_mm
-from scenes.truth import material_point_positions
+from scenes.deformation.stage import stage_fields, stage_poses, stage_states_mm
+from scenes.optics.projection import material_point_positions
 
 
 def test_stage_fields_give_the_positions_of_the_translated_poses():

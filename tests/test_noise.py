@@ -1,8 +1,8 @@
-"""Tests for scenes.noise: the sensor-noise model."""
+"""Tests for scenes.sensor.noise: the sensor-noise model."""
 import numpy as np
 import pytest
 
-from scenes.noise import SensorNoise, apply_sensor_noise, max_grey, noise_sigma_grey, to_image_dtype
+from scenes.sensor.noise import SensorNoise, apply_sensor_noise, max_grey, noise_sigma_grey, to_image_dtype
 
 FLAT_SHAPE = (1024, 1024)
 

@@ -1,4 +1,4 @@
-"""The lens' diffraction (scenes.optics): the closed-form OTF against the Airy pattern's own Fourier transform,
+"""The lens' diffraction (scenes.optics.mtf): the closed-form OTF against the Airy pattern's own Fourier transform,
 and the image filter against it."""
 from __future__ import annotations
 
@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from scipy import integrate, special
 
-from scenes.optics import Optics, airy_radius_px, apply_optics, diffraction_otf
+from scenes.optics.mtf import Optics, airy_radius_px, apply_optics, diffraction_otf
 
 F_NUMBER, WAVELENGTH_NM, PITCH_MM = 8.0, 550.0, 0.00345
 

@@ -209,7 +209,7 @@ def test_reports_say_how_many_images_the_deterministic_renderer_made():
     """An experiment's render sentence counts the images made without Monte Carlo and those left to Mitsuba."""
     only = experiment_idics.render_lines({"speckle_renderers": {"polygon-quadrature": 42}})
     assert only[0].startswith("Renders: 42 images without Monte Carlo (exact coverage")
-    assert only[0].endswith("nodes per pixel; scenes.exact_render).")
+    assert only[0].endswith("nodes per pixel; scenes.rendering.exact).")
     mixed = experiment_idics.render_lines({"speckle_renderers": {"polygon-quadrature": 40, "mitsuba": 2}})
     assert mixed[0].endswith("; 2 by Mitsuba where a view needed it.")
     assert experiment_idics.render_lines({"speckle_renderers": {"mitsuba": 2}}) == []

@@ -16,7 +16,7 @@ _HAD_STRAY_LOG = Path("plotter_log.log").exists()
 pyvale = pytest.importorskip("pyvale")
 
 from labio.atomic import atomic_write_image  # noqa: E402
-from scenes import synthetic_images as si  # noqa: E402
+from scenes.image_pairs import gaussian_speckle as si
 from workbench.peers import pyvale_engine  # noqa: E402
 
 # ``import pyvale`` leaves an empty plotter_log.log in the current folder (the checkout): take it away again.

@@ -78,7 +78,7 @@ def test_both_renderers_image_the_same_texture(result):
 
 def test_ours_sees_the_plate_over_every_pixel(result):
     """Our partial-coverage pixels would still lie in the texture's range: check coverage itself."""
-    from scenes.render import render_view
+    from scenes.rendering.mitsuba import render_view
 
     scene = result["scene"]
     for side in bench.SIDES:

@@ -2,8 +2,8 @@
 import numpy as np
 import pytest
 
-from scenes.camera import SensorSpec, sensor_dict
-from scenes.targets import Checkerboard
+from scenes.optics.camera import SensorSpec, sensor_dict
+from scenes.surfaces.checkerboard import Checkerboard
 from workbench.experiments.calibration.views import board_outline_mm, render_board_views
 from workbench.poses import BoardOutOfViewError, check_in_view, random_board_poses
 from workbench.rigs import get_rig, paper_rig
@@ -80,7 +80,7 @@ def test_crop_outside_sensor():
 
 
 def test_render_needs_samples_and_surfaces():
-    from scenes.render import render_view
+    from scenes.rendering.mitsuba import render_view
 
     spec = SensorSpec(fx=1000.0, fy=1000.0, cx=50.0, cy=40.0, width=100, height=80)
     with pytest.raises(ValueError, match="spp"):

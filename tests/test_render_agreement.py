@@ -30,8 +30,8 @@ def test_fit_detects_a_known_model_error(paper_rig_quarter):
     """The measurement is sensitive: shifting the model's principal point by 0.05 px is seen as -0.05 px."""
     from dataclasses import replace
 
-    from scenes.render import render_view
-    from scenes.targets import Checkerboard
+    from scenes.rendering.mitsuba import render_view
+    from scenes.surfaces.checkerboard import Checkerboard
     from workbench.experiments.calibration.views import sensor_spec_for
 
     rig = paper_rig_quarter
@@ -49,7 +49,7 @@ def test_fit_detects_a_known_model_error(paper_rig_quarter):
 
 @pytest.mark.parametrize("side", ["left", "right"])
 def test_adaptive_renders_keep_the_render_model_agreement(paper_rig_quarter, side):
-    """The cropped, adaptively sampled renderer (scenes.adaptive) keeps the foundation property (≤ 0.01 px
+    """The cropped, adaptively sampled renderer (scenes.rendering.adaptive) keeps the foundation property (≤ 0.01 px
     mean): its corners sit where measurement.camera projects them, as the fixed-spp film's do."""
     adaptive = _adaptive_agreement(paper_rig_quarter)
     e = adaptive["cameras"][side]

@@ -3,10 +3,10 @@ import numpy as np
 import pytest
 
 from measurement.camera import ScheimpflugCamera
-from scenes.camera import SensorSpec
-from scenes.render import render_view
-from scenes.specimens import SpeckledPlate
-from scenes.targets import Checkerboard
+from scenes.optics.camera import SensorSpec
+from scenes.rendering.mitsuba import render_view
+from scenes.specimens.plate import SpeckledPlate
+from scenes.surfaces.checkerboard import Checkerboard
 from workbench.experiments.calibration.views import camera_to_sensor_spec
 from workbench.experiments.depth_of_field.run import scheimpflug_sensor_tilt_deg
 

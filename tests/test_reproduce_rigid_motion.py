@@ -93,7 +93,7 @@ def _corner_calibration(rig, seed):
     and the options it was made with."""
     from measurement.calibration.detection import board_points_mm
     from measurement.calibration.stepwise import calibrate_stereo
-    from scenes.targets import Checkerboard
+    from scenes.surfaces.checkerboard import Checkerboard
     from workbench.experiments.calibration.views import board_outline_mm
     from workbench.poses import random_board_poses
 

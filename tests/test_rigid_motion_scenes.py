@@ -10,12 +10,13 @@ import cv2
 import numpy as np
 import pytest
 
-from scenes.motion import STAGE_UP_WORLD, stage_displacements_mm, stage_poses, stage_states_mm
-from scenes.render import render_view
-from scenes.specimens import BendingSpecimen, SpeckledPlate
-from scenes.truth import (defocus_blur_px, focal_length_for_focus_mm, in_focus_points_world_mm,
-                          intersect_front_face, material_point_positions, pixel_rays, points_of_interest_truth,
-                          project_points)
+from scenes.deformation.stage import STAGE_UP_WORLD, stage_displacements_mm, stage_poses, stage_states_mm
+from scenes.rendering.mitsuba import render_view
+from scenes.specimens.beam import BendingSpecimen
+from scenes.specimens.plate import SpeckledPlate
+from scenes.optics.projection import (defocus_blur_px, focal_length_for_focus_mm, in_focus_points_world_mm,
+                                      intersect_front_face, material_point_positions, pixel_rays,
+                                      points_of_interest_truth, project_points)
 from workbench.agreement import fourier_shift_fit
 from workbench.experiments.rigid_motion.scenes import (SpecimenOutOfViewError, load_truth, render_rigid_motion,
                                                        rigid_motion_truth)
@@ -105,7 +106,7 @@ def test_bending_specimen_solid_and_validation():
 
 
 def test_truth_rays_agree_with_measurement_camera(rig):
-    """scenes.truth and measurement.camera are independent implementations of the same camera."""
+    """scenes.optics.projection and measurement.camera are independent implementations of the same camera."""
     from workbench.experiments.calibration.views import sensor_spec_for
 
     rng = np.random.default_rng(0)

@@ -6,7 +6,7 @@ from dataclasses import replace
 from workbench.experiments.calibration.views import sensor_spec_for
 from workbench.experiments.rigid_motion.scenes import face_blur_px, specimen_reference_pose
 from workbench.rigs import (facing_plane_world, get_rig, paper_rig, scheimpflug_rig, scheimpflug_tilt_for_plane)
-from scenes.specimens import BendingSpecimen
+from scenes.specimens.beam import BendingSpecimen
 
 
 def _hinge_line_points(alpha_deg, beta_deg, image_distance_mm):

@@ -12,7 +12,7 @@ import pytest
 import skfem
 from skfem.io.meshio import to_meshio
 
-from scenes.fe_files import write_exodus
+from scenes.specimens.fe_files import write_exodus
 
 #: The plate's linear displacement per state: u = A_k X + b_k (mm).
 A = [np.zeros((3, 3)), np.diag([1e-3, -0.3e-3, 0.0]), np.diag([2e-3, -0.6e-3, 0.0])]
@@ -41,7 +41,7 @@ def test_render_specimen_writes_a_dataset_whose_truth_is_the_analytic_plate(tmp_
     is state 0 moved by (0.5, 0.5) pixel footprints."""
     from workbench.cli import main
     from workbench.scoring.datasets import open_dataset, point_truth
-    from scenes.truth import pixel_rays
+    from scenes.optics.projection import pixel_rays
 
     scenario = _scenario(tmp_path)
     assert main(["render", "specimen", str(scenario), "--out", str(tmp_path / "out")]) == 0
@@ -52,7 +52,7 @@ def test_render_specimen_writes_a_dataset_whose_truth_is_the_analytic_plate(tmp_
     doc = json.loads((tmp_path / "out" / "truth.json").read_text())
     R0, t0 = np.array(doc["R_world_from_specimen"]), np.array(doc["t_world_from_specimen_mm"])
     spec_cam = doc["cameras"]["left"]
-    from scenes.camera import SensorSpec
+    from scenes.optics.camera import SensorSpec
     spec = SensorSpec(**spec_cam["sensor_spec"])
     # the mesh's origin (default: bounding-box centre in x, y; smallest z) is the specimen frame's origin
     shift = np.array([0.0, 0.0, 0.0])

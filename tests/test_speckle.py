@@ -1,8 +1,8 @@
-"""Tests for scenes.speckle: the truth-side speckle texture."""
+"""Tests for scenes.surfaces.speckle: the truth-side speckle texture."""
 import numpy as np
 import pytest
 
-from scenes.speckle import speckle_pattern, speckle_size_from_pattern, texels_for
+from scenes.surfaces.speckle import speckle_pattern, speckle_size_from_pattern, texels_for
 
 SHAPE = (512, 512)
 

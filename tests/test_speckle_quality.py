@@ -1,8 +1,8 @@
 """measurement.speckle_quality against independent references.
 
 The references are never the module's own output: the analytic autocorrelation size of Gaussian-blob speckle
-(scenes.synthetic_images.speckle_size_for_radius), the noise model the images were made with
-(scenes.noise.noise_sigma_grey), counts and moments taken by hand with numpy, closed-form sums of squared
+(scenes.image_pairs.gaussian_speckle.speckle_size_for_radius), the noise model the images were made with
+(scenes.sensor.noise.noise_sigma_grey), counts and moments taken by hand with numpy, closed-form sums of squared
 gradients of sinusoids and of the analytic speckle's exact gradient, and the scatter of the instrument's own
 first-order DIC (measurement.dic.correlate) on a static pair.
 """
@@ -24,15 +24,10 @@ from measurement.speckle_quality import (
     subset_advice,
     subset_sssig,
 )
-from scenes.noise import apply_sensor_noise, noise_sigma_grey
-from scenes.synthetic_images import (
-    band_limit,
-    extent_for_shape,
-    fourier_shift,
-    gaussian_speckle,
-    radius_for_speckle_size,
-    speckle_size_for_radius,
-)
+from scenes.sensor.noise import apply_sensor_noise, noise_sigma_grey
+from scenes.image_pairs.fourier_shift import band_limit, fourier_shift
+from scenes.image_pairs.gaussian_speckle import (extent_for_shape, gaussian_speckle, radius_for_speckle_size,
+                                                 speckle_size_for_radius)
 
 
 def speckle(shape, size_px, seed, *, periodic=False, mean_grey=128.0, std_grey=30.0):

@@ -2,10 +2,10 @@
 import numpy as np
 import pytest
 
-from scenes.camera import SensorSpec
-from scenes.noise import SensorNoise
-from scenes.render import render_view
-from scenes.specimens import SpeckledPlate
+from scenes.optics.camera import SensorSpec
+from scenes.sensor.noise import SensorNoise
+from scenes.rendering.mitsuba import render_view
+from scenes.specimens.plate import SpeckledPlate
 from workbench.agreement import fourier_shift_fit
 
 W = H = 192

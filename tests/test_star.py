@@ -1,4 +1,4 @@
-"""DIC Challenge 2.0 Star: the exact images (scenes.star) and the metrics and theory (workbench.experiments.dic2d.star)."""
+"""DIC Challenge 2.0 Star: the exact images (scenes.image_pairs.star) and the metrics and theory (workbench.experiments.dic2d.star)."""
 from __future__ import annotations
 
 import argparse
@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 import scipy.optimize
 
-from scenes.star import (CHALLENGE_SHAPE, StarDisplacement, star_displacement_for_shape, star_images, star_pair,
-                         star_speckle, star_static_pair)
+from scenes.image_pairs.star import (CHALLENGE_SHAPE, StarDisplacement, star_displacement_for_shape, star_images,
+                                     star_pair, star_speckle, star_static_pair)
 from workbench.experiments.dic2d.star import (add_star_parser, first_crossing_px, run_star, star_command, star_metrics,
                                         subset_transfer, theoretical_l10_px)
 

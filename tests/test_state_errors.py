@@ -1,17 +1,17 @@
 """Error sources between the states of a rigid-motion / loading experiment, truth side.
 
-Stage errors (scenes.motion.StageErrors), camera drift (scenes.drift), illumination change
-(scenes.illumination). Each expected value is written out independently here (closed-form geometry,
+Stage errors (scenes.deformation.stage.StageErrors), camera drift (scenes.sensor.drift), illumination change
+(scenes.sensor.illumination). Each expected value is written out independently here (closed-form geometry,
 numpy ZNCC), not taken from the code under test. Tolerances are in the test names or docstrings.
 """
 import numpy as np
 import pytest
 
-from scenes.drift import CameraDrift, apparent_displacement_mm, drifted_pose
-from scenes.illumination import IlluminationChange
-from scenes.motion import (STAGE_UP_WORLD, StageErrors, stage_displacements_mm, stage_fields, stage_poses,
-                           stage_states_mm, true_stage_displacements_mm)
-from scenes.truth import material_point_positions
+from scenes.sensor.drift import CameraDrift, apparent_displacement_mm, drifted_pose
+from scenes.sensor.illumination import IlluminationChange
+from scenes.deformation.stage import (STAGE_UP_WORLD, StageErrors, stage_displacements_mm, stage_fields, stage_poses,
+                                      stage_states_mm, true_stage_displacements_mm)
+from scenes.optics.projection import material_point_positions
 
 
 def _random_pose(seed):
@@ -332,7 +332,7 @@ def test_stage_rotation_turns_the_specimen_about_its_moving_centre_by_the_rate_t
     which moves by the nominal displacement; stage_fields give the same material positions (1e-9 mm)."""
     from scipy.spatial.transform import Rotation
 
-    from scenes.motion import StageErrors, stage_fields, stage_poses
+    from scenes.deformation.stage import StageErrors, stage_fields, stage_poses
 
     errors = StageErrors(rotation_urad_per_mm=(0.0, 0.0, 40.0))
     R0 = Rotation.from_rotvec([0.1, -0.2, 0.3]).as_matrix()

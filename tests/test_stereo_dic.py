@@ -8,9 +8,9 @@ import pytest
 
 from measurement.dic import DICSettings, Status
 from measurement.stereo_dic import StereoMatchError, match_features, measure_state, reference_shape
-from scenes.noise import SensorNoise
-from scenes.render import render_view
-from scenes.specimens import SpeckledPlate
+from scenes.sensor.noise import SensorNoise
+from scenes.rendering.mitsuba import render_view
+from scenes.specimens.plate import SpeckledPlate
 from workbench.experiments.calibration.views import sensor_spec_for
 from workbench.rigs import paper_rig
 

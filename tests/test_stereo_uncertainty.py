@@ -17,9 +17,9 @@ from measurement.speckle_quality import NoiseModel
 from measurement.stereo_dic import measure_state, reference_shape
 from measurement.stereo_io import SIGMA_COLUMNS, state_sigmas
 from measurement.uncertainty.stereo import sigmas, state_covariances_mm2, triangulation_sensitivity
-from scenes.noise import SensorNoise
-from scenes.render import render_view
-from scenes.specimens import SpeckledPlate
+from scenes.sensor.noise import SensorNoise
+from scenes.rendering.mitsuba import render_view
+from scenes.specimens.plate import SpeckledPlate
 from workbench.experiments.calibration.views import sensor_spec_for
 from workbench.rigs import paper_rig
 

@@ -1,7 +1,7 @@
 """The truth below a pixel (issue 38): every render path draws a sub-pixel motion of the paint where it is.
 
 The reference is independent of the renderers' texture: 16 x 16 rays per pixel meet the plate and evaluate the
-paint's band-limited interpolant (16 texels per pixel); :func:`scenes.speckle.fourier_upsample` itself is checked
+paint's band-limited interpolant (16 texels per pixel); :func:`scenes.surfaces.speckle.fourier_upsample` itself is checked
 against a direct sum of the pattern's Fourier series.
 """
 from __future__ import annotations
@@ -9,7 +9,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from scenes.speckle import fourier_upsample
+from scenes.surfaces.speckle import fourier_upsample
 from workbench.experiments.subpixel import PlateScene, phase_errors
 
 #: The issue's goal: the render's own sub-pixel error at every phase, px RMS.
@@ -89,7 +89,7 @@ def test_a_half_pixel_motion_is_measured_as_well_as_the_instrument_alone_measure
 
 def _periodic_photo() -> np.ndarray:
     """A periodic 5 px speckle 'photograph' (grey 20-220), whose exact sub-pixel motion is its Fourier shift."""
-    from scenes.speckle import speckle_pattern
+    from scenes.surfaces.speckle import speckle_pattern
 
     return 20.0 + 200.0 * speckle_pattern((128, 128), 5.0, contrast=0.8, seed=3).astype(float)
 
@@ -106,10 +106,10 @@ def test_the_twins_photograph_moves_within_0_001_px_of_its_band_limited_shift():
 def test_a_cubic_spline_through_the_photographs_pixels_fails_the_check(monkeypatch):
     """The twin's texture as it was (a cubic B-spline through the pixels themselves, no finer samples) is caught:
     at a (0.75, 0.25) px phase it moves the pattern by more than 0.001 px."""
-    import scenes.image_texture
+    import scenes.surfaces.image_texture
     from workbench.experiments.subpixel import photo_phase_errors
 
-    monkeypatch.setattr(scenes.image_texture, "UPSAMPLE", 1)
+    monkeypatch.setattr(scenes.surfaces.image_texture, "UPSAMPLE", 1)
     r = photo_phase_errors(_periodic_photo(), [(0.75, 0.25)])[0]
     assert r["render_rms_px"] > RENDER_GOAL_PX, r
 

@@ -1,23 +1,13 @@
-"""Tests for scenes.synthetic_images: exact Fourier-shifted and analytic Gaussian-speckle image pairs."""
+"""Tests for scenes.image_pairs.gaussian_speckle: exact Fourier-shifted and analytic Gaussian-speckle image pairs."""
 import numpy as np
 import pytest
 
-from scenes.speckle import speckle_size_from_pattern
-from scenes.synthetic_images import (
-    GaussianSpeckle,
-    HomogeneousStrain,
-    QuadraticField,
-    Rotation,
-    Translation,
-    band_limit,
-    extent_for_shape,
-    fourier_shift,
-    fourier_shifted_pair,
-    gaussian_speckle,
-    radius_for_speckle_size,
-    solve_reference_positions,
-    speckle_size_for_radius,
-)
+from scenes.surfaces.speckle import speckle_size_from_pattern
+from scenes.image_pairs.gaussian_speckle import (GaussianSpeckle, extent_for_shape, gaussian_speckle,
+                                                 radius_for_speckle_size, speckle_size_for_radius)
+from scenes.image_pairs.analytic_fields import (HomogeneousStrain, QuadraticField, Rotation, Translation,
+                                                solve_reference_positions)
+from scenes.image_pairs.fourier_shift import band_limit, fourier_shift, fourier_shifted_pair
 
 SQRT2 = np.sqrt(2.0)
 

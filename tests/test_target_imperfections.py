@@ -1,9 +1,9 @@
-"""Calibration-target imperfections (scenes.targets.Checkerboard): print scale, bow, corner noise.
+"""Calibration-target imperfections (scenes.surfaces.checkerboard.Checkerboard): print scale, bow, corner noise.
 
 Every reference here is independent of the implementation: the bowed surface and its arc length are written
 out from the docstring's definition (numerical quadrature, not the closed form the module inverts), the
 default quad is a copy of the code it had before the imperfections existed, and the rendered board is
-checked with OpenCV's detector against ``scenes.truth.project_points``.
+checked with OpenCV's detector against ``scenes.optics.projection.project_points``.
 
 The paper's board: 12 x 9 squares of 5 mm, so the checkered area spans x in [-5, 55] mm, y in [-5, 40] mm
 (centre (25, 17.5), Lx = 60 mm, Ly = 45 mm, half diagonal 37.5 mm).
@@ -12,8 +12,8 @@ import numpy as np
 import pytest
 from scipy.integrate import quad
 
-from scenes.surfaces import TexturedSurface
-from scenes.targets import FACET_TOLERANCE_MM, Checkerboard
+from scenes.surfaces.textured_surface import TexturedSurface
+from scenes.surfaces.checkerboard import FACET_TOLERANCE_MM, Checkerboard
 
 XC, YC, LX, LY = 25.0, 17.5, 60.0, 45.0
 H_SPHERE = 0.5 * np.hypot(LX, LY)
@@ -223,8 +223,8 @@ def test_corner_noise_moves_inner_corners_only():
 def rendered_imperfect_board(paper_rig_quarter):
     from scipy.spatial.transform import Rotation
 
-    from scenes.render import render_view
-    from scenes.truth import project_points
+    from scenes.rendering.mitsuba import render_view
+    from scenes.optics.projection import project_points
     from workbench.experiments.calibration.views import sensor_spec_for
 
     rig = paper_rig_quarter

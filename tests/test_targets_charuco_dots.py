@@ -1,4 +1,4 @@
-"""ChArUco boards and dot grids: the printed truth (``scenes.targets``), detection (``measurement.calibration.
+"""ChArUco boards and dot grids: the printed truth (``scenes.surfaces.checkerboard``), detection (``measurement.calibration.
 targets``) on rendered views, and stereo calibrations from them scored against the true rig.
 
 Renders: the paper rig at a quarter of its resolution (614 x 514 px), 16 spp, noise-free 8-bit-range floats.
@@ -8,7 +8,7 @@ board's footprint; squares ~43 px, marker cells ~5 px) and an 11 x 8 dot grid of
 352): any even polygon keeps its centroid on the true centre, its edge is within r (1 - cos(pi / 64)) = 1.5 um
 (0.01 px here) of the circle, and its imaged centroid differs from the circle's by ~1e-3 of the eccentricity
 (second moments), i.e. ~2e-5 px. The truth of every image point is its true 3-D point projected by the *truth side's*
-camera (:func:`scenes.truth.project_points`), independent of ``measurement.camera``.
+camera (:func:`scenes.optics.projection.project_points`), independent of ``measurement.camera``.
 
 Tolerances
 ----------
@@ -41,8 +41,9 @@ import pytest
 from measurement.calibration.stepwise import calibrate_stereo
 from measurement.calibration.targets import (CharucoSpec, DotGridSpec, charuco_points_mm, detect_charuco,
                                              detect_dot_grid, dot_grid_points_mm)
-from scenes.targets import CharucoBoard, DotGrid
-from scenes.truth import project_points
+from scenes.surfaces.charuco import CharucoBoard
+from scenes.surfaces.dot_grid import DotGrid
+from scenes.optics.projection import project_points
 from workbench.experiments.calibration.run import _as_rig, score_against_truth
 from workbench.experiments.calibration.views import board_outline_mm, render_board_views, sensor_spec_for
 from workbench.poses import random_board_poses

@@ -224,8 +224,8 @@ def test_lens_aliases_name_the_canonical_models():
 
 def test_truth_side_projection_of_a_camera_with_k3_and_thin_prism_equals_the_instruments():
     """camera_to_sensor_spec carries k3 and s1-s4 to the renderer's description; the truth side's projection
-    (scenes.truth, its own implementation) then equals measurement.camera's within 1e-9 px, tilt included."""
-    from scenes.truth import project_points
+    (scenes.optics.projection, its own implementation) then equals measurement.camera's within 1e-9 px, tilt included."""
+    from scenes.optics.projection import project_points
     from workbench.experiments.calibration.views import camera_to_sensor_spec
 
     cam = _camera(k3=0.8, alpha_deg=0.6, beta_deg=-4.5, **PRISM)

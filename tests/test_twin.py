@@ -42,7 +42,7 @@ def rendered_rig(tmp_path_factory):
     import skfem
     from skfem.io.meshio import to_meshio
 
-    from scenes.fe_files import write_exodus
+    from scenes.specimens.fe_files import write_exodus
     from workbench.cli import main
 
     tmp = tmp_path_factory.mktemp("rendered_rig")
@@ -111,7 +111,7 @@ def test_twin_2d_on_an_analytic_static_pair_within_10_percent(tmp_path):
     """One camera, no calibration: an exact Star-speckle static pair (4 px speckles, read noise 2 grey, 8 bit);
     predicted u, v noise within 10 % of the instrument's on the pair; l10 on the pattern within 15 % of the theory
     for the subset and order (DIC Challenge 2.0)."""
-    from scenes.star import star_images
+    from scenes.image_pairs.star import star_images
     from workbench.twin import TwinSettings, run_twin
 
     images = star_images((201, 600), 4.0, noise_grey=2.0, seed=4, deformed=False, static=True)
@@ -177,8 +177,8 @@ def test_a_calibration_for_another_image_size_is_refused(rendered_rig, tmp_path)
 
 
 def _speckle(shape, size_px, seed=0, noise=1.0):
-    from scenes.noise import apply_sensor_noise
-    from scenes.synthetic_images import extent_for_shape, gaussian_speckle, radius_for_speckle_size
+    from scenes.sensor.noise import apply_sensor_noise
+    from scenes.image_pairs.gaussian_speckle import extent_for_shape, gaussian_speckle, radius_for_speckle_size
 
     pattern = gaussian_speckle(extent_for_shape(shape, 8.0), radius_for_speckle_size(size_px), 0.5, seed,
                                mean_grey=120.0, std_grey=35.0)
@@ -232,8 +232,8 @@ def test_wrong_bit_depth_claims_are_refused(tmp_path):
 
 
 def test_a_static_pair_that_moved_is_refused_with_its_motion(tmp_path):
-    from scenes.synthetic_images import fourier_shift
-    from scenes.noise import apply_sensor_noise
+    from scenes.image_pairs.fourier_shift import fourier_shift
+    from scenes.sensor.noise import apply_sensor_noise
     from workbench.twin import NotStaticError, TwinSettings, run_twin
 
     clean, image = _speckle((200, 240), 4.0, seed=5)

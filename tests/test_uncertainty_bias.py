@@ -24,8 +24,8 @@ from measurement.dic import DICSettings, correlate
 from measurement.dic.bspline import interpolate, prefilter
 from measurement.uncertainty.bias import (DEFAULT_SHIFTS_PX, bias_bound_px, bias_curves_px, interpolant_transfer,
                                           translation_bias_px)
-from scenes.synthetic_images import (band_limit, extent_for_shape, fourier_shift, gaussian_speckle,
-                                     radius_for_speckle_size)
+from scenes.image_pairs.fourier_shift import band_limit, fourier_shift
+from scenes.image_pairs.gaussian_speckle import extent_for_shape, gaussian_speckle, radius_for_speckle_size
 
 SHIFTS_PX = np.round(np.arange(1, 10) * 0.1, 10)
 SUBSET_PX = 33

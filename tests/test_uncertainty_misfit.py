@@ -1,7 +1,7 @@
 """The shape-function misfit estimate (:mod:`measurement.uncertainty.misfit`) against an analytic solution and
 against the error the match makes on an exact quadratic field.
 
-Reference field: ``u = a dx^2``, ``v = a dy^2`` about the image centre (``scenes.synthetic_images.QuadraticField``,
+Reference field: ``u = a dx^2``, ``v = a dy^2`` about the image centre (``scenes.image_pairs.analytic_fields.QuadraticField``,
 an exact render of a Gaussian-blob speckle), ``a = 0.005 / 82`` per px: du/dx changes by 0.5 % over a 41 px subset.
 A first-order 41 px subset's least-squares fit of ``a dx^2`` puts ``a (M^2 - 1) / 12 = 0.00854 px`` at its centre
 for uniform texture (the mean of dx^2 over the subset): the analytic reference.
@@ -16,8 +16,9 @@ from measurement.dic.correlate import prepare_image
 from measurement.speckle_quality import NoiseModel
 from measurement.uncertainty.match import dic_uncertainty, reference_subsets
 from measurement.uncertainty.misfit import field_derivatives, misfit_bias_px
-from scenes.noise import SensorNoise
-from scenes.synthetic_images import QuadraticField, extent_for_shape, gaussian_speckle, radius_for_speckle_size
+from scenes.sensor.noise import SensorNoise
+from scenes.image_pairs.analytic_fields import QuadraticField
+from scenes.image_pairs.gaussian_speckle import extent_for_shape, gaussian_speckle, radius_for_speckle_size
 
 SIZE = 256
 SUBSET = 41

@@ -138,7 +138,7 @@ def scheimpflug_tilt_for_plane(camera: ScheimpflugCamera, R_cam_from_world, t_ca
                                f_number: float = DEFAULT_F_NUMBER) -> tuple[float, float, float, float]:
     """Sensor tilt and lens focal length that put a thin lens' plane of sharp focus on a given plane.
 
-    The thin-lens rule of the renderer (:func:`scenes.truth.in_focus_points_world_mm`: a sensor point at
+    The thin-lens rule of the renderer (:func:`scenes.optics.projection.in_focus_points_world_mm`: a sensor point at
     image distance ``v p_z`` is conjugate to depth ``1 / (1/F - 1/(v p_z))`` on its chief ray) is solved in
     least squares for ``(alpha, beta, F)``: the in-focus points of a 7 x 7 grid of pixels over the image must
     lie on the plane. Without distortion the in-focus points of a tilted sensor form one plane (Scheimpflug)
@@ -151,8 +151,8 @@ def scheimpflug_tilt_for_plane(camera: ScheimpflugCamera, R_cam_from_world, t_ca
     """
     from scipy.optimize import least_squares
 
-    from scenes.camera import SensorSpec
-    from scenes.truth import in_focus_points_world_mm
+    from scenes.optics.camera import SensorSpec
+    from scenes.optics.projection import in_focus_points_world_mm
 
     c = np.asarray(centre_world_mm, float)
     n = np.asarray(normal_world, float) / np.linalg.norm(normal_world)

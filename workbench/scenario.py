@@ -187,7 +187,7 @@ class LensConfig:
 @dataclass(frozen=True)
 class SpecimenConfig:
     """A specimen of one's own (experiment ``specimen``): a surface mesh or an FE result, placed before the rig
-    and painted (:mod:`scenes.mesh_specimen`). State 0 is the first chosen step (the reference)."""
+    and painted (:mod:`scenes.specimens.mesh_specimen`). State 0 is the first chosen step (the reference)."""
 
     mesh: str = _f("", "the mesh or FE result file: STL, PLY, OBJ, GLB (surfaces), VTU, VTK, Gmsh .msh, Abaqus .inp, "
                        "Exodus .e/.exo (every time step), ParaView .pvd; a relative path is relative to the scenario "
@@ -298,7 +298,7 @@ SPECKLE_RENDERER_TAGS = {
             "+ mitsuba-adaptive, else mitsuba",
     "mitsuba": "mitsuba"}
 
-#: The speckle states' optics when ``rig.diffraction`` is on (:mod:`scenes.optics`).
+#: The speckle states' optics when ``rig.diffraction`` is on (:mod:`scenes.optics.mtf`).
 OPTICS_VERSION = "diffraction-otf/1"
 
 #: The specimen path's version (tessellation, paint layout, truth maps): a change that alters a specimen
@@ -342,9 +342,9 @@ def dataset_parts(scenario: Scenario) -> dict[str, tuple[str, dict]]:
 
 
 def optics_of(scenario: Scenario, pixel_pitch_mm: float):
-    """The true rig's optics (:class:`scenes.optics.Optics`): its lens' diffraction at ``rig.f_number`` on pixels
+    """The true rig's optics (:class:`scenes.optics.mtf.Optics`): its lens' diffraction at ``rig.f_number`` on pixels
     of ``pixel_pitch_mm`` (the rig's, at its scale), or ideal optics with ``rig.diffraction = false``."""
-    from scenes.optics import Optics
+    from scenes.optics.mtf import Optics
 
     rig = scenario.rig
     return Optics(f_number=rig.f_number if rig.diffraction else None, wavelength_nm=rig.wavelength_nm,

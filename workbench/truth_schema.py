@@ -14,8 +14,8 @@ from pathlib import Path, PurePath
 import numpy as np
 
 from labio.schema import FileFormatError, Node, read_json_file
-from scenes.camera import EXTRA_LENS_TERMS, SensorSpec
-from scenes.specimens import BendingSpecimen
+from scenes.optics.camera import EXTRA_LENS_TERMS, SensorSpec
+from scenes.specimens.beam import BendingSpecimen
 
 SIDES = ("left", "right")
 #: Positions and translations in truth files: |x| below this (mm).

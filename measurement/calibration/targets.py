@@ -1,7 +1,7 @@
 """ChArUco and dot-grid (circle-grid) calibration targets: specs, board points and detection in canonical order.
 
 The instrument side of the targets. The specs are what an experimenter knows about a printed target (its
-numbers); they are independent of the renderer's target models (``scenes.targets``), with which they agree by
+numbers); they are independent of the renderer's target models (``scenes.surfaces.checkerboard``), with which they agree by
 numbers only (squares, sizes, dictionary name).
 
 Board frames (mm, z = 0 on the printed face, z into the board, as :func:`measurement.calibration.detection.
@@ -15,7 +15,7 @@ board_points_mm`):
   symmetric grid has no orientation mark; the order is fixed by the image (see :func:`detect_dot_grid`).
 
 A dot's detected position is the centroid of its image, which under perspective is not the image of its
-centre (the eccentricity error, a few hundredths of a pixel on tilted views, see ``scenes.targets.DotGrid``);
+centre (the eccentricity error, a few hundredths of a pixel on tilted views, see ``scenes.surfaces.dot_grid.DotGrid``);
 this module does not correct it.
 """
 from __future__ import annotations

@@ -11,7 +11,7 @@ from workbench.commands.options import output_folder, scale_arg
 
 
 def add_parser(sub) -> None:
-    from scenes.fe_catalog import CATALOG
+    from scenes.specimens.catalog import CATALOG
 
     ca = sub.add_parser("catalog", help="a catalog specimen (FE solved with scikit-fem) as a .pvd/VTU result and a "
                                         "scenario.toml that renders it with `workbench render specimen`")
@@ -24,7 +24,7 @@ def catalog_command(args) -> int:
     import json
 
     from labio.atomic import atomic_write_text
-    from scenes.fe_catalog import CATALOG, write_pvd
+    from scenes.specimens.catalog import CATALOG, write_pvd
     from workbench.experiments.specimen.catalog import scenario_text
 
     output_folder(args.out)

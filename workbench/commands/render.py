@@ -36,7 +36,7 @@ def add_parser(sub) -> None:
 
 
 def render_checkerboard_command(args) -> int:
-    from scenes.noise import SensorNoise
+    from scenes.sensor.noise import SensorNoise
     from workbench.experiments.calibration.views import write_checkerboard_dataset
     from workbench.rigs import get_rig
 

@@ -6,7 +6,7 @@ from the origin, in the specimen's x-z plane, each ``stereo angle / 2`` off the 
 through the origin (left camera at -x); image rows run along the specimen's +y. The rig's world is the left
 camera's frame (the project's convention, :class:`workbench.rigs.StereoRig`).
 
-Optics (the renderer's thin lens, :mod:`scenes.truth`): a lens of focal length F and a sensor at image distance
+Optics (the renderer's thin lens, :mod:`scenes.optics.projection`): a lens of focal length F and a sensor at image distance
 ``v`` (so ``fx = fy = v / pitch``, principal point at the image centre, no distortion). Untilted, ``v`` focuses the
 face centre on the axis: ``1/v = 1/F - 1/D``. Tilted (Scheimpflug), :func:`hinge_rule` solves the sensor tilts
 (alpha about x, beta about y) and ``v`` so that the plane of sharp focus is the face's (best) plane: the in-focus
@@ -24,8 +24,8 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from measurement.camera import ScheimpflugCamera
-from scenes.camera import SensorSpec
-from scenes.truth import in_focus_points_world_mm, sensor_points
+from scenes.optics.camera import SensorSpec
+from scenes.optics.projection import in_focus_points_world_mm, sensor_points
 from workbench.rigs import StereoRig
 
 SIDES = ("left", "right")
@@ -90,7 +90,7 @@ def focus_image_distance_mm(width: int, height: int, pitch_mm: float, focal_leng
         raise ValueError(f"the point is {Z:.1f} mm from the lens, inside its focal length {focal_length_mm:g} mm: "
                          "no sharp image")
     v = 1.0 / (1.0 / focal_length_mm - 1.0 / Z)
-    from scenes.truth import project_points
+    from scenes.optics.projection import project_points
     for _ in range(4):
         spec = thin_spec(width, height, pitch_mm, v, focal_length_mm, 8.0, alpha_deg, beta_deg)
         p_z = float(sensor_points(spec, project_points(spec, R, t, X))[0, 2])

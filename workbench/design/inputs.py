@@ -49,7 +49,7 @@ class SpecimenInput:
     speckle_px: float = _f(4.0, "speckle diameter in pixels at the face centre when speckle_mm is absent", min=2.0,
                            max=50.0)
     speckle_contrast: float = _f(0.8, "paint contrast: grey difference of bright and dark phase over full scale "
-                                      "(scenes.paint)", min=0.05, max=1.0)
+                                      "(scenes.surfaces.paint)", min=0.05, max=1.0)
     sample_points: tuple[int, int] = _f((13, 9), "ROI sample grid for the prediction (across, down)", min=2, max=200)
 
 

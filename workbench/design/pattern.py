@@ -26,8 +26,8 @@ import numpy as np
 from measurement.image_quality import mean_intensity_gradient
 from measurement.speckle_quality import NoiseModel
 from measurement.uncertainty.match import reference_subsets
-from scenes.optics import aperture_otf
-from scenes.speckle import speckle_pattern
+from scenes.optics.mtf import aperture_otf
+from scenes.surfaces.speckle import speckle_pattern
 
 #: Airy pattern's best-fitting Gaussian: sigma = AIRY_SIGMA lambda N (image plane). The table's diffraction axis is
 #: that sigma in px; the images get the Airy pattern itself (:func:`paint_images`).
@@ -111,7 +111,7 @@ class PatternTable:
                 | (np.asarray(diffraction_px) > self.diffraction_px[-1]))
 
 
-#: Texels per speckle diameter of a paint's samples (:attr:`scenes.paint.Paint.texel`: speckle / 5).
+#: Texels per speckle diameter of a paint's samples (:attr:`scenes.surfaces.paint.Paint.texel`: speckle / 5).
 PAINT_TEXELS_PER_SPECKLE = 5.0
 
 
@@ -129,10 +129,10 @@ def paint_images(speckle_px: float, blurs, size_px: int, *, contrast: float = 0.
     """Images (size_px square) of the paint with speckle ``speckle_px``, one per ``(defocus_px, diffraction_px)`` of
     ``blurs``, as the renderer makes them.
 
-    The paint is what :mod:`scenes.paint` renders: the speckle's samples at ``speckle / 5`` texels
-    (:func:`scenes.speckle.speckle_pattern`, the paint's soft edge) and their band-limited (Fourier) interpolant;
+    The paint is what :mod:`scenes.surfaces.paint` renders: the speckle's samples at ``speckle / 5`` texels
+    (:func:`scenes.surfaces.speckle.speckle_pattern`, the paint's soft edge) and their band-limited (Fourier) interpolant;
     here that interpolant is evaluated on a grid :data:`OVERSAMPLE` (or more) times finer than the pixels, blurred
-    by a uniform disc of the defocus diameter and the lens' Airy pattern (:func:`scenes.optics.aperture_otf`, the
+    by a uniform disc of the defocus diameter and the lens' Airy pattern (:func:`scenes.optics.mtf.aperture_otf`, the
     renderer's own; ``diffraction_px`` is its Gaussian-equivalent sigma :data:`AIRY_SIGMA` ``lambda N``), and
     averaged over each pixel. The texel count is rounded so that the periodic pattern spans the patch exactly (the speckle is then
     ``5 size / round(5 size / speckle)`` px, within 1 %).
@@ -157,7 +157,7 @@ def paint_images(speckle_px: float, blurs, size_px: int, *, contrast: float = 0.
     radial = np.sqrt(fx ** 2 + fy ** 2)
     out = []
     for defocus, diffraction in blurs:
-        # the lens' diffraction as the renderer applies it (scenes.optics: the aperture's Airy OTF, cut-off
+        # the lens' diffraction as the renderer applies it (scenes.optics.mtf: the aperture's Airy OTF, cut-off
         # 1 / (lambda N) = AIRY_SIGMA / diffraction cycles per px); its Gaussian of the same sigma keeps ~10 % more
         # gradient energy at f/8 on a 4 px speckle
         airy = aperture_otf(radial * over * diffraction / AIRY_SIGMA) if diffraction > 0 else 1.0

@@ -5,7 +5,7 @@ Per ROI sample point and per camera (each point at the reference and at both end
 * **where it is imaged** and how the face maps to the image there (the 2 x 2 Jacobian ``A`` = d pixel / d mm along
   the face's x and y tangents, by central differences of the renderer's projection): the local image scale, the
   speckle's diameter in px (``d sqrt(det A)``) and the foreshortening (``A / sqrt(det A)``);
-* **blur**: the thin lens' defocus circle (:func:`scenes.truth.defocus_blur_px`, a uniform disc of diameter ``c``)
+* **blur**: the thin lens' defocus circle (:func:`scenes.optics.projection.defocus_blur_px`, a uniform disc of diameter ``c``)
   and diffraction (Airy ~ Gaussian sigma ``0.42 lambda N``), both tabulated (:mod:`~workbench.design.pattern`);
 * **light**: the image irradiance goes as ``1 / (N (1 + m))^2`` (m: magnification at the face centre); the
   lighting states the mean grey at one f-number; the exposure is cut where the brightest paint would pass
@@ -36,7 +36,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from measurement.uncertainty.stereo import sigmas, static_repeat_covariance_mm2, triangulation_sensitivity
-from scenes.truth import defocus_blur_px, project_points
+from scenes.optics.projection import defocus_blur_px, project_points
 
 from .geometry import SIDES, CandidateRig
 from .pattern import AIRY_SIGMA, E0_GREY, PatternTable

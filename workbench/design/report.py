@@ -51,7 +51,7 @@ def _to_spec(cand, X_world: np.ndarray) -> np.ndarray:
 def _focus_lines(cand, blur_px: float, row: bool):
     """Per camera: the in-focus points and the near/far limits along the middle row (or column) of pixels, in the
     specimen frame."""
-    from scenes.truth import in_focus_points_world_mm
+    from scenes.optics.projection import in_focus_points_world_mm
 
     out = {}
     for side in SIDES:

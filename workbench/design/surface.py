@@ -2,7 +2,7 @@
 
 The face the cameras see is at ``z ~ 0`` facing ``-z`` (every catalog specimen, the beam, a user's mesh as the
 specimen path places it). A plane is sampled on a grid over its ROI; a mesh (a catalog FE result or a user's file,
-read by :func:`scenes.fe_files.read_specimen_file`) where a ray along ``+z`` through each node of the same grid first
+read by :func:`scenes.specimens.fe_files.read_specimen_file`) where a ray along ``+z`` through each node of the same grid first
 meets it (what a camera looking along ``+z`` sees there: the near wall of a hollow specimen, never its far one), kept
 where that face is a front face (outer normal within 60 deg of ``-z``). A curved face (the pressurised cylinder) keeps its depth: the
 points' best-fit plane is what a tilted sensor is focused on, the rest is defocus the prediction counts.
@@ -138,7 +138,7 @@ def first_hit_along_z(triangles: np.ndarray, x: float, y: float) -> tuple[float,
 
 def mesh_surface(path, unit: str = "mm", roi_mm=None, samples=(13, 9), label: str = "") -> Surface:
     """The front face of a mesh or FE file (module notes)."""
-    from scenes.fe_files import read_specimen_file
+    from scenes.specimens.fe_files import read_specimen_file
 
     sf = read_specimen_file(path, unit=unit, steps=[0]) if _has_fields(path) else read_specimen_file(path, unit=unit)
     tris, norms = _triangles(sf.mesh)
@@ -171,7 +171,7 @@ def _has_fields(path) -> bool:
 
 def catalog_file(name: str, folder) -> Path:
     """Write catalog specimen ``name``'s FE result into ``folder`` (once) and return its ``.pvd``."""
-    from scenes.fe_catalog import CATALOG, write_pvd
+    from scenes.specimens.catalog import CATALOG, write_pvd
 
     folder = Path(folder)
     existing = sorted(folder.glob("*.pvd")) if folder.is_dir() else []

@@ -82,7 +82,7 @@ def plane_file(width_mm: float, height_mm: float, folder) -> Path:
 
 def camera_image(clean_grey: np.ndarray, gain: float, camera, seed: int) -> np.ndarray:
     """A noise-free image scaled by ``gain`` with the camera's read and shot noise, quantised to its bit depth."""
-    from scenes.noise import apply_sensor_noise
+    from scenes.sensor.noise import apply_sensor_noise
 
     exposed = np.asarray(clean_grey, np.float64) * gain
     noisy = apply_sensor_noise(exposed, read_noise_grey=camera.read_noise_grey,
@@ -131,7 +131,7 @@ def _roi_mask(truth, surface, shape, subset_px: int) -> np.ndarray:
 
     R0, t0 = truth.pose
     spec, Rc, tc = truth.cameras["left"]
-    from scenes.truth import project_points
+    from scenes.optics.projection import project_points
     edge = np.asarray(surface.points_mm)
     px = project_points(spec, Rc, tc, edge @ np.asarray(R0).T + np.asarray(t0))
     hull = cv2.convexHull(np.round(px[np.all(np.isfinite(px), axis=1)]).astype(np.int32))

@@ -113,19 +113,19 @@ def append_idics(out_dir: str | Path, stage: str, metrics: dict) -> None:
 #: How each speckle renderer is named in reports.
 SPECKLE_RENDERER_TEXT = {
     "polygon-quadrature": "without Monte Carlo (exact coverage of the specimen's faces, Gauss-Legendre quadrature of "
-                          "the speckle, 6 x 6 nodes per pixel; scenes.exact_render)",
+                          "the speckle, 6 x 6 nodes per pixel; scenes.rendering.exact)",
     "in-focus-quadrature+mitsuba-adaptive": "through thin lenses: the pixels in focus (blur circle <= 0.1 px) "
                                             "without Monte Carlo as above, the blurred rest (end faces, "
-                                            "silhouette) by Mitsuba, adaptive (scenes.adaptive.render_views_auto)",
+                                            "silhouette) by Mitsuba, adaptive (scenes.rendering.adaptive.render_views_auto)",
     "in-focus-quadrature+defocus-quadrature": "through thin lenses without Monte Carlo: the pixels in focus as "
                                               "above, the blurred flat faces by quadrature over the pixel and the "
-                                              "aperture (scenes.defocus_quadrature)",
+                                              "aperture (scenes.rendering.defocus_quadrature)",
     "in-focus-quadrature+defocus-quadrature+mitsuba-adaptive": "through thin lenses: the pixels in focus and the "
                                                                "blurred flat faces without Monte Carlo (quadrature "
                                                                "over the pixel and the aperture), the rest "
                                                                "(silhouettes, faces that are not flat) by Mitsuba, "
-                                                               "adaptive (scenes.adaptive.render_views_auto)",
-    "mitsuba-adaptive": "by Mitsuba, adaptive (scenes.adaptive)",
+                                                               "adaptive (scenes.rendering.adaptive.render_views_auto)",
+    "mitsuba-adaptive": "by Mitsuba, adaptive (scenes.rendering.adaptive)",
     "mitsuba": "by Mitsuba at a fixed spp",
 }
 

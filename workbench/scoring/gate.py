@@ -191,7 +191,7 @@ def check_calibration(check: Check, instrument: Instrument, engine, store, workd
 
 def check_star(check: Check, instrument: Instrument, engine, store, workdir: Path, options: dict) -> dict:
     """DIC Challenge 2.0 Star at reduced size: spatial resolution l10 (vs the subset's theory), noise floor, MEI."""
-    from scenes.star import star_images
+    from scenes.image_pairs.star import star_images
     from workbench.engines import array_engine
     from workbench.experiments.dic2d.star import run_star
 

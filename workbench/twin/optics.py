@@ -2,9 +2,9 @@
 
 A calibration file describes a pinhole camera; the user states the lens's f-number and the pixel pitch
 (``--f-number``, ``--pixel-pitch-um``) and the twin takes the lens focused on the specimen plane's centre (its focal
-length follows from the calibrated image distance, :func:`scenes.truth.focal_length_for_focus_mm`). Per camera:
+length follows from the calibrated image distance, :func:`scenes.optics.projection.focal_length_for_focus_mm`). Per camera:
 
-* blur: the defocus circle of each pixel's plane point (:func:`scenes.truth.defocus_blur_px`, diameter ``c``; a
+* blur: the defocus circle of each pixel's plane point (:func:`scenes.optics.projection.defocus_blur_px`, diameter ``c``; a
   uniform disc has ``sigma = c / 4``) and diffraction (Airy pattern ~ Gaussian ``sigma = 0.42 lambda N``, in pixels
   of the given pitch), added in quadrature;
 * light: at the same exposure time the image scales by ``(N0 / N)^2`` (clipped at the sensor's ceiling); the noise
@@ -22,7 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import ndimage
 
-from scenes.truth import defocus_blur_px, focal_length_for_focus_mm
+from scenes.optics.projection import defocus_blur_px, focal_length_for_focus_mm
 
 from .scene import TwinScene
 
@@ -73,7 +73,7 @@ def blur_sigma_px(spec, pose, plane_points_mm: np.ndarray, lens: Lens, f_number:
 
 def sample_plane_points(scene: TwinScene, side: str, region: np.ndarray | None, count: int = 4000) -> np.ndarray:
     """Plane points (mm) seen by up to ``count`` pixels of a camera's ROI (the whole image without one)."""
-    from scenes.image_texture import plane_points
+    from scenes.surfaces.image_texture import plane_points
 
     spec = scene.specs[side]
     valid = scene.valid[side] if region is None else (scene.valid[side] & region)

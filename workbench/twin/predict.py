@@ -9,7 +9,7 @@
 * :func:`interpolation_bias_px` -- the instrument's bias on the user's pattern: sub-pixel translations of the
   band-limited pattern (Fourier shift of a mirrored crop, exact for a band-limited image), noise-free.
 * :func:`spatial_resolution` -- l10 (DIC Challenge 2.0) of the user's settings on the user's pattern: the Star
-  displacement imposed on their left image (:mod:`scenes.image_texture`), measured with their subset and order
+  displacement imposed on their left image (:mod:`scenes.surfaces.image_texture`), measured with their subset and order
   (:func:`workbench.experiments.dic2d.star.run_star`).
 """
 from __future__ import annotations
@@ -21,9 +21,9 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from measurement.dic import DICSettings, correlate
-from scenes.image_texture import ImageTexture, render_deformed_image
-from scenes.star import StarImages, star_displacement_for_shape
-from scenes.synthetic_images import fourier_shift
+from scenes.surfaces.image_texture import ImageTexture, render_deformed_image
+from scenes.image_pairs.star import StarImages, star_displacement_for_shape
+from scenes.image_pairs.fourier_shift import fourier_shift
 
 from ..experiments.dic2d.star import run_star
 from .measure import StaticNoise, static_noise_2d, static_noise_stereo

@@ -203,7 +203,7 @@ def _points_sssig(image, x_px, y_px, subset: int, sigma: float) -> np.ndarray:
 def generated_pattern(shape, figures: dict, seed: int) -> np.ndarray:
     """A Gaussian speckle of ``shape`` with the measured speckle size, mean and standard deviation (the truth side's
     analytic pattern, point-sampled)."""
-    from scenes.synthetic_images import extent_for_shape, gaussian_speckle, radius_for_speckle_size
+    from scenes.image_pairs.gaussian_speckle import extent_for_shape, gaussian_speckle, radius_for_speckle_size
 
     size = max(float(figures["speckle_size_px"]), 1.6)
     pattern = gaussian_speckle(extent_for_shape(shape, 8.0), radius_for_speckle_size(size), 0.5, int(seed) + 17,

@@ -8,7 +8,7 @@ calibration file) and the plane as a point and a normal.
   instrument's triangulation of their own pair, done by the caller), else through the point where the two
   optical axes meet (or at the working distance on the left optical axis), facing the cameras.
 * The texture: the left reference image (the mean of the left static pair when there is one: half the noise),
-  painted onto the plane through the left camera (:mod:`scenes.image_texture`). The left twin view of the plane
+  painted onto the plane through the left camera (:mod:`scenes.surfaces.image_texture`). The left twin view of the plane
   at rest is therefore the photograph itself; the right view is that pattern as the right camera sees the plane,
   scaled to the right image's own mean and contrast over the ROI (lighting differs between cameras; their optics
   are taken equal, which is stated in the report).
@@ -21,8 +21,9 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from scenes.image_texture import ImageTexture, TexturedPlane, render_plane_view
-from scenes.noise import apply_sensor_noise
+from scenes.rendering.render import render_views
+from scenes.surfaces.image_texture import ImageTexture, TexturedPlane
+from scenes.sensor.noise import apply_sensor_noise
 
 from ..experiments.calibration.views import camera_to_sensor_spec
 
@@ -119,9 +120,10 @@ def build_stereo_scene(rig, texture_image: np.ndarray, plane_point_mm, plane_nor
     specs = {side: camera_to_sensor_spec(rig.camera(side), rig.pixel_pitch_mm) for side in ("left", "right")}
     plane = TexturedPlane(np.asarray(plane_point_mm, float), np.asarray(plane_normal, float),
                           ImageTexture.from_image(texture_image), specs["left"], rig.pose("left"))
-    clean, valid = {}, {}
-    for side in ("left", "right"):
-        clean[side], valid[side] = render_plane_view(specs[side], rig.pose(side), plane, displacement_mm)
+    sides = ("left", "right")
+    made = render_views([(specs[side], rig.pose(side)) for side in sides], plane, displacement_mm=displacement_mm)
+    clean = {side: view.image_grey for side, view in zip(sides, made)}
+    valid = {side: view.valid for side, view in zip(sides, made)}
     if right_target is not None:
         region = right_region if right_region is not None else np.ones(right_target.shape, bool)
         clean["right"] = contrast_matched(clean["right"], valid["right"], np.asarray(right_target, float), region)

@@ -307,7 +307,7 @@ def reproduce_bending(out_dir: str | Path, *, scale: float = 1.0, rig_name: str 
         metrics["strain_goal_scale_law"] = strain_goal_scale_law(rig_name, lens, scale, loads, subset_size, step, seed,
                                                                  goal_row["peak_truth_strain_ue"], k_goal)
     # the FE truth against beam theory and a mesh-refinement pair, at the goal load
-    from scenes.fields import three_point_bending_report
+    from scenes.deformation.beam_bending import three_point_bending_report
     metrics["fe_verification"] = three_point_bending_report(truth.beam, load_N=1800.0)
     from workbench.experiments.bending.report import write_bending_report
     write_bending_report(out_dir, metrics, maps)          # adds metrics["goals"]

@@ -1,14 +1,14 @@
 """The paper's three-point bending test, truth side: an FE-deformed speckled beam rendered in stereo.
 
-The beam (:class:`scenes.specimens.BendingSpecimen`, 120 x 30 x 10 mm) stands where the rig's optical axes meet,
+The beam (:class:`scenes.specimens.beam.BendingSpecimen`, 120 x 30 x 10 mm) stands where the rig's optical axes meet,
 its face towards the cameras' bisector, exactly as in the rigid-motion test. It is loaded in three-point
-bending (:mod:`scenes.fields`: a linear-elastic finite-element solution, aluminium, supports 100 mm apart, the
+bending (:mod:`scenes.deformation.beam_bending`: a linear-elastic finite-element solution, aluminium, supports 100 mm apart, the
 loading nose at mid-span on the top face pushing down = +y of the specimen, i.e. down in the images) at the
 paper's loads: a 20 N reference, then 200 -> 2000 N in 200 N steps. Every state moves every surface vertex of
 the beam by the FE displacement at its load and is rendered in both cameras.
 
 Truth of a DIC point (DESIGN §3): the chief ray of the left reference pixel hits the face *deformed by the 20 N
-preload* at the material point X0 (:func:`scenes.truth.intersect_deformed_front_face`); its true position in
+preload* at the material point X0 (:func:`scenes.optics.projection.intersect_deformed_front_face`); its true position in
 state k is ``R (X0 + u_k(X0)) + t``, and its true surface strain relative to the reference state follows from
 the exact displacement gradients of both states (:meth:`BendingTruth.strain_truth`).
 """
@@ -23,11 +23,12 @@ import numpy as np
 
 from labio.atomic import atomic_write_text
 
-from scenes.camera import SensorSpec
-from scenes.fields import ThreePointBending, three_point_bending_field
-from scenes.noise import SensorNoise
-from scenes.specimens import BendingSpecimen
-from scenes.truth import focal_length_for_focus_mm, intersect_deformed_front_face, pixel_rays, project_points
+from scenes.optics.camera import SensorSpec
+from scenes.deformation.beam_bending import ThreePointBending, three_point_bending_field
+from scenes.sensor.noise import SensorNoise
+from scenes.specimens.beam import BendingSpecimen
+from scenes.optics.projection import (focal_length_for_focus_mm, intersect_deformed_front_face, pixel_rays,
+                                      project_points)
 from workbench.experiments.calibration.views import sensor_spec_for
 from workbench.manifest import complete_folder, prepare_folder
 from workbench.experiments.rigid_motion.scenes import (BLUR_WARNING_PX, check_specimen_in_view, face_blur_px,
@@ -195,7 +196,7 @@ def render_bending(rig: StereoRig | str, out_dir, scale: float = 1.0, lens: str 
     loads_N : state 0 is the reference (default: 20 N, then 200 -> 2000 N by 200 N)
     overwrite : replace an earlier dataset in ``out_dir`` (deletes exactly the files its manifest lists); without
         it such a folder is refused (:class:`workbench.manifest.DatasetFolderError`)
-    optics : :class:`scenes.optics.Optics`, optional; the lens' diffraction (None: ideal optics)
+    optics : :class:`scenes.optics.mtf.Optics`, optional; the lens' diffraction (None: ideal optics)
     """
     rig, rig_scale = resolve_rig(rig, scale)
     if spp < 1:
@@ -230,7 +231,7 @@ def _truth_to_json(truth: BendingTruth) -> dict:
                  "axes, mm). Specimen pose X_world = R_world_from_specimen @ (X + u_k(X)) + t_world_from_specimen_mm "
                  "with u_k the finite-element displacement at load k (specimen frame: origin at the front-face "
                  "centre, x along the length, y along the height pointing down, z into the material). The FE model "
-                 "is in 'beam' (scenes.fields.ThreePointBending); it is re-solved deterministically on loading. "
+                 "is in 'beam' (scenes.deformation.beam_bending.ThreePointBending); it is re-solved deterministically on loading. "
                  "Truth of a DIC point: the left reference pixel's chief ray meets the face deformed by the "
                  "reference load at X0; in state k it is at R (X0 + u_k(X0)) + t "
                  "(workbench.experiments.bending.scenes.load_bending_truth(...).points_of_interest).",

@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 
 from labio.atomic import atomic_write_text
-from scenes.targets import Checkerboard
+from scenes.surfaces.checkerboard import Checkerboard
 from workbench.agreement import detector_errors, fit_corners
 from workbench.experiments.calibration.views import board_outline_mm, render_board_views
 from workbench.manifest import save_figure
@@ -32,7 +32,7 @@ def patch_half_size_px(rig: StereoRig, board: Checkerboard) -> int:
 def _how(summary: dict) -> str:
     """How the views were rendered, for the report's text."""
     if summary.get("renderer") == "exact":
-        return "exact box-filtered polygons (scenes.exact_render, no Monte Carlo)"
+        return "exact box-filtered polygons (scenes.rendering.exact, no Monte Carlo)"
     return f"{summary['spp']} spp (stratified, Mitsuba)"
 
 
@@ -40,7 +40,7 @@ def measure_agreement(rig: StereoRig, n_views: int = 2, seed: int = 0, spp: int 
                       progress: bool = True, renderer: str = "mitsuba") -> dict:
     """Render ``n_views`` random board poses in both cameras and fit every inner corner.
 
-    ``renderer``: ``"mitsuba"`` (the sensor plugin, Monte Carlo) or ``"exact"`` (:mod:`scenes.exact_render`):
+    ``renderer``: ``"mitsuba"`` (the sensor plugin, Monte Carlo) or ``"exact"`` (:mod:`scenes.rendering.exact`):
     either renderer's agreement with the instrument's camera model.
 
     Returns a dict with per-camera offsets (N, 2) and summary statistics, plus the OpenCV detector's error
@@ -54,7 +54,7 @@ def measure_agreement(rig: StereoRig, n_views: int = 2, seed: int = 0, spp: int 
                   for side in ("left", "right")}
     t_render = t_fit = 0.0
     t0 = time.perf_counter()
-    # spp "adaptive:<grey>": the cropped, adaptively sampled renderer (scenes.adaptive) at that MC noise target
+    # spp "adaptive:<grey>": the cropped, adaptively sampled renderer (scenes.rendering.adaptive) at that MC noise target
     target = float(str(spp).split(":", 1)[1]) if str(spp).startswith("adaptive:") else None
     for bv in render_board_views(rig, board, poses, spp=256 if target else spp, seed=seed, progress=progress,
                                  mc_target_grey=target, renderer=renderer):

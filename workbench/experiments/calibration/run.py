@@ -28,9 +28,9 @@ from labio.atomic import atomic_write_text
 from measurement.calibration.stepwise import calibrate_stereo
 from measurement.rigid import apply_rigid, fit_rigid
 from measurement.stereo import fit_plane, triangulate
-from scenes.noise import SensorNoise
-from scenes.targets import Checkerboard
-from scenes.truth import project_points
+from scenes.sensor.noise import SensorNoise
+from scenes.surfaces.checkerboard import Checkerboard
+from scenes.optics.projection import project_points
 from workbench.experiments.calibration.views import board_outline_mm, sensor_spec_for, write_checkerboard_dataset
 from workbench.manifest import save_figure
 from workbench.store import dataset_record, stored_render
@@ -116,7 +116,7 @@ def render_text(metrics: dict) -> str:
 
 
 def mc_summary(records: list) -> dict | None:
-    """Per-dataset figures of adaptive renders (:mod:`scenes.adaptive`): measured MC noise and sample counts."""
+    """Per-dataset figures of adaptive renders (:mod:`scenes.rendering.adaptive`): measured MC noise and sample counts."""
     records = [r for r in records if r]
     if not records:
         return None
@@ -142,9 +142,9 @@ def reproduce_calibration(out_dir: Path, *, scale: float = 1.0, seed: int = 0, s
     an identical run reuses them; ``metrics["images"]`` names the folder.
     ``rig_name``: the true rig (:func:`workbench.rigs.get_rig`); boards are rendered through its pinhole (the
     chief-ray geometry that a thin lens shares), its tilt guess from :data:`RIG_TILT_GUESS_DEG`.
-    ``mc_target_grey``: adaptive renders (:mod:`scenes.adaptive`) at that Monte-Carlo noise instead of ``spp``.
+    ``mc_target_grey``: adaptive renders (:mod:`scenes.rendering.adaptive`) at that Monte-Carlo noise instead of ``spp``.
     ``renderer``: ``"auto"`` renders every view the exact renderer can make without Monte Carlo
-    (:mod:`scenes.exact_render`), the rest with Mitsuba; ``"mitsuba"`` all with Mitsuba
+    (:mod:`scenes.rendering.exact`), the rest with Mitsuba; ``"mitsuba"`` all with Mitsuba
     (:data:`workbench.experiments.calibration.views.BOARD_RENDERERS`).
     ``covariance``: the parameter covariance each calibration stores, ``"linear"`` (the least squares') or
     ``"bootstrap"`` (``bootstrap_draws`` recalibrations of synthetic corners, seeded by ``seed``:

@@ -10,10 +10,9 @@ from tqdm import tqdm
 
 from labio.atomic import atomic_write_image, atomic_write_text
 
-from scenes.camera import SensorSpec
-from scenes.noise import SensorNoise, to_image_dtype
-from scenes.render import render_view
-from scenes.targets import Checkerboard
+from scenes.optics.camera import SensorSpec
+from scenes.sensor.noise import SensorNoise, to_image_dtype
+from scenes.surfaces.checkerboard import Checkerboard
 from workbench.manifest import complete_folder, prepare_folder
 from workbench.poses import check_in_view, random_board_poses
 from workbench.rigs import StereoRig
@@ -31,13 +30,13 @@ class BoardView:
     R_cam_from_board: np.ndarray      # (3, 3)
     t_cam_from_board_mm: np.ndarray   # (3,)
     points_cam_mm: np.ndarray         # (N, 3) inner corners in this camera's frame
-    pixels: np.ndarray                # (N, 2) their true projections (scenes.truth), OpenCV convention
+    pixels: np.ndarray                # (N, 2) their true projections (scenes.optics.projection), OpenCV convention
     extra: dict = field(default_factory=dict)
 
 
 def board_outline_mm(board: Checkerboard) -> np.ndarray:
     """Outer corners of the checkered area (without the white margin), board frame, (4, 3); a target with its
-    own ``outline_board_mm()`` (e.g. :class:`scenes.targets.DotGrid`) gives that."""
+    own ``outline_board_mm()`` (e.g. :class:`scenes.surfaces.dot_grid.DotGrid`) gives that."""
     if hasattr(board, "outline_board_mm"):
         return np.asarray(board.outline_board_mm(), dtype=float)
     x0, x1, y0, y1 = board.extent_board_mm()
@@ -67,24 +66,6 @@ def sensor_spec_for(rig: StereoRig, side: str, **lens) -> SensorSpec:
 BOARD_RENDERERS = ("auto", "exact", "mitsuba")
 
 
-def _render_exact(specs: dict, rig: StereoRig, surface, bit_depth: int, view: int, renderer: str):
-    """Both cameras' exact renders of one view ({side: (image, extra)}), or None when a camera cannot be rendered
-    exactly and ``renderer == "auto"`` (the reason is returned for the record)."""
-    from scenes.exact_render import NotExactError, render_view_exact
-
-    out = {}
-    for side in ("left", "right"):
-        try:
-            image, info = render_view_exact(specs[side], *rig.pose(side), [surface],
-                                            exposure_grey=EXPOSURE_GREY[bit_depth])
-        except NotExactError as err:
-            if renderer == "exact":
-                raise ValueError(f"view {view}, {side} camera: the exact renderer cannot render it: {err}") from None
-            return None, f"{side} camera: {err}"
-        out[side] = (image, {"renderer": info["renderer"]})
-    return out, None
-
-
 def render_board_views(rig: StereoRig, board: Checkerboard, poses, *, spp: int = 64, seed: int = 0,
                        bit_depth: int = 8, progress: bool = True, lens_terms: dict | None = None,
                        mc_target_grey: float | None = None, renderer: str = "auto"):
@@ -92,17 +73,21 @@ def render_board_views(rig: StereoRig, board: Checkerboard, poses, *, spp: int =
 
     ``poses``: list of ``(R_world_from_board, t_world_from_board_mm)``. A pose whose board leaves an image
     raises :class:`workbench.poses.BoardOutOfViewError` naming the view and camera. The truth of a view is
-    where the corners really are (:meth:`scenes.targets.Checkerboard.true_corners_board_mm`: an imperfect
+    where the corners really are (:meth:`scenes.surfaces.checkerboard.Checkerboard.true_corners_board_mm`: an imperfect
     board's corners are not the nominal ones the instrument is told). ``lens_terms``: distortion terms of the
     true lenses that the rig's model lacks (``k3``, ``s1``-``s4``). The truth pixels are always projected by the
-    truth side's camera (:func:`scenes.truth.project_points`), never by the instrument's model. ``mc_target_grey``: render both cameras of a view
-    from one scene with :mod:`scenes.adaptive` at that Monte-Carlo noise (``spp`` is then unused); the measured
+    truth side's camera (:func:`scenes.optics.projection.project_points`), never by the instrument's model. ``mc_target_grey``: render both cameras of a view
+    from one scene with :mod:`scenes.rendering.adaptive` at that Monte-Carlo noise (``spp`` is then unused); the measured
     noise and sample counts are in ``BoardView.extra["mc"]``. ``renderer`` (:data:`BOARD_RENDERERS`): ``"auto"``
-    renders each view exactly (:mod:`scenes.exact_render`: the box-filtered pixel of the printed polygons, no
-    Monte-Carlo noise) where it can and with Mitsuba otherwise (a bowed board that occludes itself, ...);
+    renders each view exactly (:mod:`scenes.rendering.exact`: the box-filtered pixel of the printed polygons, no
+    Monte-Carlo noise) where it can and with Mitsuba otherwise (a bowed board that occludes itself, ...), through
+    the one render entry :func:`scenes.rendering.render.render_views` (with ``mc_target_grey`` an occluding board
+    is made exactly but at its occluding edges, which Mitsuba traces);
     ``BoardView.extra["renderer"]`` says which made the image, ``extra["fallback"]`` why Mitsuba did.
     """
-    from scenes.truth import project_points
+    from scenes.optics.projection import project_points
+    from scenes.rendering.exact import NotExactError
+    from scenes.rendering.render import render_views
 
     if renderer not in BOARD_RENDERERS:
         raise ValueError(f"board renderer {renderer!r}: choose one of {', '.join(BOARD_RENDERERS)}")
@@ -111,27 +96,24 @@ def render_board_views(rig: StereoRig, board: Checkerboard, poses, *, spp: int =
         check_in_view(board_outline_mm(board) @ np.asarray(R_wb).T + t_wb, rig, what=f"board of view {view}")
         surface = board.surface(R_wb, t_wb)
         specs = {side: sensor_spec_for(rig, side, **(lens_terms or {})) for side in ("left", "right")}
-        exact, fallback = (None, None) if renderer == "mitsuba" else _render_exact(specs, rig, surface, bit_depth,
-                                                                                 view, renderer)
-        adaptive = None
-        if exact is None and mc_target_grey is not None:
-            from scenes.adaptive import AdaptiveSettings, render_views_adaptive
-            adaptive = render_views_adaptive([(specs[side], rig.pose(side)) for side in ("left", "right")], [surface],
-                                             seed=seed * 100003 + 2 * view, exposure_grey=EXPOSURE_GREY[bit_depth],
-                                             settings=AdaptiveSettings(target_mc_grey=mc_target_grey))
+        try:
+            made = render_views([(specs[side], rig.pose(side)) for side in ("left", "right")], [surface],
+                                renderer=renderer, spp=spp, seed=seed * 100003 + 2 * view,
+                                exposure_grey=EXPOSURE_GREY[bit_depth], mc_target_grey=mc_target_grey)
+        except NotExactError as err:
+            side = ("left", "right")[err.view_index]
+            raise ValueError(f"view {view}, {side} camera: the exact renderer cannot render it: {err}") from None
         for k, side in enumerate(("left", "right")):
             R_cw, t_cw = rig.pose(side)
             R_cb, t_cb = R_cw @ R_wb, R_cw @ t_wb + t_cw
             spec = specs[side]
-            if exact is not None:
-                image, extra = exact[side]
-            elif adaptive is None:
-                image, extra = render_view(spec, R_cw, t_cw, [surface], spp=spp, seed=seed * 100003 + 2 * view + k,
-                                           exposure_grey=EXPOSURE_GREY[bit_depth]).image_grey, {"renderer": "mitsuba"}
-            else:
-                image, extra = adaptive[k].image_grey, {"mc": adaptive[k].mc, "renderer": "mitsuba-adaptive"}
-            if fallback is not None:
-                extra["fallback"] = fallback
+            image, extra = made[k].image_grey, {"renderer": made[k].renderer}
+            if made[k].mc is not None:
+                extra = {"mc": made[k].mc, **extra}
+            if made[k].reason is not None:
+                failed = made[k].reason_view
+                extra["fallback"] = (made[k].reason if failed is None
+                                     else f"{('left', 'right')[failed]} camera: {made[k].reason}")
             points = corners_board @ R_cb.T + t_cb
             pixels = project_points(spec, np.eye(3), np.zeros(3), points)     # truth side, never the instrument
             yield BoardView(view, side, image, R_cb, t_cb, points, pixels, extra)
@@ -178,7 +160,7 @@ def write_checkerboard_dataset(rig: StereoRig, out_dir: Path, n_views: int, seed
         })
     truth = {
         "about": "Ground truth of rendered checkerboard views. Pixels follow OpenCV (pixel centres at integer "
-                 "coordinates) and are computed by the truth side (scenes.truth.project_points) from points_cam_mm. Poses: "
+                 "coordinates) and are computed by the truth side (scenes.optics.projection.project_points) from points_cam_mm. Poses: "
                  "X_cam = R_cam_from_board @ X_board + t_cam_from_board_mm; stereo: X_right = R @ X_left + T.",
         "rig": {"name": rig.name, "R_right_from_left": np.asarray(rig.R_right_from_left).tolist(),
                 "T_right_from_left_mm": np.asarray(rig.T_right_from_left_mm).tolist(),

@@ -16,11 +16,11 @@ from scipy.optimize import brentq
 
 from labio.atomic import atomic_write_image, atomic_write_text
 from measurement.image_quality import mean_intensity_gradient
-from scenes.camera import SensorSpec
-from scenes.noise import SensorNoise, to_image_dtype
-from scenes.render import render_view
-from scenes.specimens import SpeckledPlate
-from scenes.truth import defocus_blur_px, intersect_front_face, pixel_rays, project_points
+from scenes.optics.camera import SensorSpec
+from scenes.sensor.noise import SensorNoise, to_image_dtype
+from scenes.rendering.render import render_views
+from scenes.specimens.plate import SpeckledPlate
+from scenes.optics.projection import defocus_blur_px, intersect_front_face, pixel_rays, project_points
 
 
 def _focus_slope(beta_rad: float, image_distance_mm: float, focal_length_mm: float, ds: float = 1e-3) -> float:
@@ -109,8 +109,10 @@ def run_depth_of_field(fx: float = 10912.0, width: int = 2456, height: int = 205
                                  speckle_px, texels_per_px, seed)
     texture = scene.plate.texture()
     surface = scene.plate.surface(scene.R_world_from_plate, scene.t_world_from_plate_mm, texture)
-    images = {name: render_view(spec, np.eye(3), np.zeros(3), [surface], spp=spp, seed=seed + 1).image_grey
-              for name, spec in scene.specs.items()}
+    names = list(scene.specs)
+    made = render_views([(scene.specs[n], (np.eye(3), np.zeros(3))) for n in names], [surface], renderer="mitsuba",
+                        spp=spp, view_seeds=[seed + 1] * len(names))
+    images = {n: r.image_grey for n, r in zip(names, made)}
     mask = _central_mask(*images["scheimpflug"].shape)
     return DepthOfFieldResult(scene.sensor_tilt_deg, mean_intensity_gradient(images["scheimpflug"], mask),
                               mean_intensity_gradient(images["conventional"], mask),
@@ -182,7 +184,7 @@ def run_depth_of_field_study(scale: float = 0.5, object_tilt_deg: float = 38.0, 
     """MIG, blur, DIC noise floor and displacement error of the tilted and untilted sensor at one f-number.
 
     The plate moves by ``shift_px`` pixels' worth (at its centre) along its own x axis between the two renders.
-    ``mc_target_grey``: both cameras from one scene with :func:`scenes.adaptive.render_views_auto` (the pixels in
+    ``mc_target_grey``: both cameras from one scene with :func:`scenes.rendering.render.render_views` (the pixels in
     focus and the blurred plate without Monte Carlo, anything left adaptive at that Monte-Carlo noise; ``spp``
     unused); the
     measured noise, renderer and share of pixels made without Monte Carlo per image are in
@@ -197,16 +199,15 @@ def run_depth_of_field_study(scale: float = 0.5, object_tilt_deg: float = 38.0, 
     for key, offset in (("static", np.zeros(3)), ("moved", shift)):
         surface = scene.plate.surface(scene.R_world_from_plate,
                                       scene.t_world_from_plate_mm + scene.R_world_from_plate @ offset, texture)
+        names = list(scene.specs)
+        views = [(scene.specs[n], (np.eye(3), np.zeros(3))) for n in names]
         if mc_target_grey is None:
-            images[key] = {name: render_view(spec, np.eye(3), np.zeros(3), [surface], spp=spp,
-                                             seed=seed + 1 + (key == "moved")).image_grey
-                           for name, spec in scene.specs.items()}
+            rendered = render_views(views, [surface], renderer="mitsuba", spp=spp,
+                                    view_seeds=[seed + 1 + (key == "moved")] * len(names))
+            images[key] = {n: r.image_grey for n, r in zip(names, rendered)}
         else:
-            from scenes.adaptive import AdaptiveSettings, render_views_auto
-            names = list(scene.specs)
-            rendered = render_views_auto([(scene.specs[n], (np.eye(3), np.zeros(3))) for n in names], [surface],
-                                         seed=10 * (seed + 1 + (key == "moved")),
-                                         settings=AdaptiveSettings(target_mc_grey=mc_target_grey))
+            rendered = render_views(views, [surface], seed=10 * (seed + 1 + (key == "moved")),
+                                    mc_target_grey=mc_target_grey)
             images[key] = {n: r.image_grey for n, r in zip(names, rendered)}
             # no Monte Carlo at all (every pixel in focus): 0 noise, target met
             mc[key] = {n: {**(r.mc or {"mc_rms_grey": 0.0, "target_met": True}), "renderer": r.renderer,
@@ -233,7 +234,7 @@ def _render_text(metrics: dict) -> str:
     if all(v >= 1.0 for v in shares.values()):
         return ("every pixel without Monte Carlo: in focus (blur circle <= 0.1 px) by quadrature over the pixel"
                 + (f", blurred by quadrature over the pixel and the aperture (each blur's rule within "
-                   f"{max(quadrature):.3f} grey RMS of a rule 4-5x denser, scenes.defocus_quadrature)"
+                   f"{max(quadrature):.3f} grey RMS of a rule 4-5x denser, scenes.rendering.defocus_quadrature)"
                    if quadrature else ""))
     text = (f"the pixels in focus (blur circle <= 0.1 px) and the blurred plate's without Monte Carlo "
             "(at least " + ", ".join(f"{100 * v:.0f} % of the {k} camera's" for k, v in shares.items())
@@ -245,7 +246,7 @@ def _render_text(metrics: dict) -> str:
               if any(r.get("target_met") is False for r in c.get("render_mc", {}).values())}
     for name, worst in missed.items():
         text += (f"; the {name} camera's renders MISSED the target ({worst:.2f} grey RMS: its defocus blur needs "
-                 "more samples per pixel than the adaptive budget, scenes.adaptive.AdaptiveSettings.sides, allows), "
+                 "more samples per pixel than the adaptive budget, scenes.rendering.adaptive.AdaptiveSettings.sides, allows), "
                  "so its static noise floor and MIG include that render noise")
     return text
 
@@ -256,7 +257,7 @@ def reproduce_depth_of_field(out_dir, *, scale: float = 1.0, object_tilt_deg: fl
     """Write ``metrics.json``, ``report.md``, ``side_by_side.png`` and ``dic_maps.png`` (tilted vs untilted).
 
     ``mc_target_grey``: renders without Monte Carlo where in focus or on the blurred plate, adaptive at that
-    Monte-Carlo noise elsewhere (:func:`scenes.adaptive.render_views_auto`) instead of ``spp``. ``shift_px``: the in-plane move of the plate
+    Monte-Carlo noise elsewhere (:func:`scenes.rendering.adaptive.render_views_auto`) instead of ``spp``. ``shift_px``: the in-plane move of the plate
     between the two renders, pixels at its centre (recorded in the metrics for the report)."""
     import json
     from pathlib import Path

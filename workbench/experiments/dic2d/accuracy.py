@@ -1,6 +1,6 @@
 """DIC accuracy report: interpolation bias vs sub-pixel shift, random error vs the noise floor, shape functions.
 
-Images are exact (``scenes.synthetic_images``): Fourier-shifted speckle pairs for pure translations,
+Images are exact (``scenes.image_pairs.gaussian_speckle``): Fourier-shifted speckle pairs for pure translations,
 analytic Gaussian speckles sampled through a known displacement field for strain, quadratic fields and
 rotations. Writes ``metrics.json``, ``bias.png`` and ``report.md``.
 """
@@ -14,9 +14,10 @@ import numpy as np
 
 from measurement.dic import DICSettings, correlate
 from labio.atomic import atomic_write_text
-from scenes.noise import apply_sensor_noise
-from scenes.synthetic_images import (HomogeneousStrain, QuadraticField, Rotation, extent_for_shape,
-                                     fourier_shifted_pair, gaussian_speckle, radius_for_speckle_size)
+from scenes.sensor.noise import apply_sensor_noise
+from scenes.image_pairs.analytic_fields import HomogeneousStrain, QuadraticField, Rotation
+from scenes.image_pairs.gaussian_speckle import extent_for_shape, gaussian_speckle, radius_for_speckle_size
+from scenes.image_pairs.fourier_shift import fourier_shifted_pair
 from workbench.manifest import save_figure
 
 SHIFTS_PX = np.round(np.arange(0.0, 1.01, 0.1), 10)
@@ -227,7 +228,7 @@ def reproduce_dic_accuracy(out_dir: str | Path, progress: bool = True) -> dict:
     lines = ["# DIC engine accuracy", "",
              "Exact images: Fourier-shifted Gaussian-speckle pairs (translations) and analytic Gaussian speckles "
              "sampled through known displacement fields. Speckle size is the autocorrelation size "
-             "(`scenes.speckle.speckle_size_from_pattern`, full width at half maximum of the autocorrelation): "
+             "(`scenes.surfaces.speckle.speckle_size_from_pattern`, full width at half maximum of the autocorrelation): "
              "2.5 px means Gaussian blobs of sigma 0.72 px, whose spectrum is substantially aliased at 1 px "
              "sampling; 4 px means sigma 1.2 px.", "",
              "## Systematic error vs sub-pixel shift", "", "![bias](bias.png)", "",

@@ -1,8 +1,8 @@
 """The ``dic2d`` study case: random and systematic error of 2-D subset DIC on an exactly translated pair.
 
 Truth: a periodic Gaussian speckle image and its exact sub-pixel Fourier translation
-(:func:`scenes.synthetic_images.fourier_shifted_pair`), with independent sensor noise in both images
-(:mod:`scenes.noise`); stored in the dataset store under the hash of the scenario parts that make them, so a
+(:func:`scenes.image_pairs.fourier_shift.fourier_shifted_pair`), with independent sensor noise in both images
+(:mod:`scenes.sensor.noise`); stored in the dataset store under the hash of the scenario parts that make them, so a
 sweep over instrument settings reuses them.
 
 Metrics (px, over the points of interest): ``bias_px`` (mean error of u), ``random_error_px`` (std of the
@@ -25,8 +25,8 @@ import numpy as np
 from measurement.dic import DICSettings, correlate
 from labio.atomic import atomic_write_bytes, atomic_write_text
 from measurement.image_io import read_grey
-from scenes.noise import apply_sensor_noise, to_image_dtype
-from scenes.synthetic_images import fourier_shifted_pair
+from scenes.sensor.noise import apply_sensor_noise, to_image_dtype
+from scenes.image_pairs.fourier_shift import fourier_shifted_pair
 from workbench.manifest import complete_folder
 from workbench.scenario import Instrument, Scenario
 
@@ -99,8 +99,8 @@ def _exact_gradient_x(image: np.ndarray) -> np.ndarray:
 
 def image_noise_sigma_grey(scenario: Scenario, clean_image: np.ndarray) -> float:
     """RMS per-pixel noise std (grey) of one image: read, shot and quantisation noise
-    (:func:`scenes.noise.noise_sigma_grey`, the prediction of the noise the image was given)."""
-    from scenes.noise import noise_sigma_grey
+    (:func:`scenes.sensor.noise.noise_sigma_grey`, the prediction of the noise the image was given)."""
+    from scenes.sensor.noise import noise_sigma_grey
 
     r = scenario.render
     sigma = noise_sigma_grey(np.maximum(clean_image, 0.0), r.read_noise_grey, r.electrons_per_grey,

@@ -1,6 +1,6 @@
 """DIC Challenge 2.0 "Star" metrics on exact Star images: spatial resolution l10, noise floor, MEI, with theory.
 
-Images and truth: :mod:`scenes.star` (``V = A cos(2 pi (Y - y0) / p(X))``, ``p`` linear in ``X``, exact
+Images and truth: :mod:`scenes.image_pairs.star` (``V = A cos(2 pi (Y - y0) / p(X))``, ``p`` linear in ``X``, exact
 Gaussian speckle, seeded sensor noise). Any DIC engine's scattered results are scored by
 :func:`star_metrics`; :func:`run_star` runs this project's engine (or any ``engine`` callable) on a Star case
 and its static pair; :func:`star_report` writes ``metrics.json``, ``report.md`` and ``star.png``.
@@ -70,8 +70,8 @@ import numpy as np
 import scipy.optimize
 
 from labio.atomic import atomic_write_bytes, atomic_write_text
-from scenes.star import CHALLENGE_PERIODS_PX, CHALLENGE_SHAPE, DEFAULT_NOISE_GREY, DEFAULT_SPECKLE_PX, \
-    StarDisplacement, StarImages, star_images
+from scenes.image_pairs.star import (CHALLENGE_PERIODS_PX, CHALLENGE_SHAPE, DEFAULT_NOISE_GREY, DEFAULT_SPECKLE_PX,
+                                     StarDisplacement, StarImages, star_images)
 
 #: The amplitude ratio that defines the spatial resolution l10.
 LEVEL = 0.9
@@ -283,7 +283,7 @@ def star_metrics(x_px, y_px, v_px, truth: StarDisplacement, *, static_v_px=None,
     v_px : array_like, shape (n,)
         Measured vertical displacement at those points, px; NaN for a failed point.
     truth : StarDisplacement
-        The imposed field (:func:`scenes.star.star_pair`'s third value).
+        The imposed field (:func:`scenes.image_pairs.star.star_pair`'s third value).
     static_v_px : array_like, optional
         Measured vertical displacement on the static pair (any points; NaN skipped), px: gives the noise
         floor and the MEI (NaN without it).
@@ -394,10 +394,10 @@ def run_star(subset_px: int, order: int, *, images: StarImages | None = None,
         Shape-function order: of this project's engine when ``engine`` is None, else the order the given
         engine uses (for the theoretical l10 only).
     images : StarImages, optional
-        A rendered case (:func:`scenes.star.star_images` with ``static=True``) to reuse across runs; else one
+        A rendered case (:func:`scenes.image_pairs.star.star_images` with ``static=True``) to reuse across runs; else one
         is rendered from ``shape``, ``periods_px``, ``speckle_size_px``, ``noise_grey`` and ``seed``.
     shape, periods_px, speckle_size_px, noise_grey, seed
-        As in :func:`scenes.star.star_images`.
+        As in :func:`scenes.image_pairs.star.star_images`.
     step_px : int, optional
         POI spacing, px; default :func:`default_step_px`.
     engine : callable, optional
@@ -463,7 +463,7 @@ def star_report(out_dir: str | Path, subsets=(17, 33, 65), orders=(1, 2), scale:
     scale : float
         Image size relative to the Challenge's (:func:`scaled_shape`), ``0 < scale <= 1``.
     seed, noise_grey, speckle_size_px
-        As in :func:`scenes.star.star_images`.
+        As in :func:`scenes.image_pairs.star.star_images`.
     step_px : int, optional
         POI spacing for every run; default :func:`default_step_px` per subset.
     progress : bool

@@ -3,8 +3,8 @@
 Stages, each its own command too: the stepwise calibration (Table 1, Fig 5 plane fit) of the paper rig, the
 rigid-motion test (Fig 6) measured with that calibration, the three-point bending test (Figs 7-8, the
 Scheimpflug rig calibrated from its own rendered boards) and the depth-of-field comparison (Fig 4, MIG). Speckle
-renders are adaptive (:mod:`scenes.adaptive`, one Monte-Carlo noise target), board views exact where possible
-(:mod:`scenes.exact_render`); all go through the one render store, so an identical scenario is never rendered
+renders are adaptive (:mod:`scenes.rendering.adaptive`, one Monte-Carlo noise target), board views exact where possible
+(:mod:`scenes.rendering.exact`); all go through the one render store, so an identical scenario is never rendered
 twice.
 
 Resume: a stage is complete when ``<out>/<stage>/stage.json`` exists for the same settings; it is written last,
@@ -156,7 +156,7 @@ def _warm_dic_kernels_beside(out_dir: Path, settings: PaperSettings):
     if stage_done(out_dir, "calibration", settings) is not None:
         return None
     code = ("import runpy; runpy.run_module('measurement.dic.warm', run_name='__main__'); "
-            "runpy.run_module('scenes.quadrature_raster', run_name='__main__')")
+            "runpy.run_module('scenes.rendering.quadrature_raster', run_name='__main__')")
     try:
         return subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     except OSError:
@@ -202,21 +202,21 @@ def _board_render_text(out_dir: Path) -> str:
             counts[name] = counts.get(name, 0) + int(n)
     if not counts:
         return "as each stage's report says"
-    names = {"exact-polygon": "exact box-filtered polygons (scenes.exact_render, no Monte Carlo)",
+    names = {"exact-polygon": "exact box-filtered polygons (scenes.rendering.exact, no Monte Carlo)",
              "mitsuba": "Mitsuba at fixed spp", "mitsuba-adaptive": "Mitsuba adaptive"}
     return "; ".join(f"{names.get(k, k)}: {v} images" for k, v in sorted(counts.items()))
 
 
 def _optics_text(settings: PaperSettings) -> str:
-    """The lens' diffraction the speckle states were recorded through (scenes.optics), at full-scale pixels."""
+    """The lens' diffraction the speckle states were recorded through (scenes.optics.mtf), at full-scale pixels."""
     if settings.f_number is None:
         return "ideal (no diffraction: --ideal-optics)"
-    from scenes.optics import airy_radius_px
+    from scenes.optics.mtf import airy_radius_px
     from workbench.rigs import DEFAULT_PIXEL_PITCH_MM
 
     pitch = DEFAULT_PIXEL_PITCH_MM / settings.scale
     return (f"the lens' diffraction at f/{settings.f_number:g}, 550 nm, {1e3 * pitch:.2f} µm pixels: Airy radius "
-            f"{airy_radius_px(settings.f_number, 550.0, pitch):.2f} px (scenes.optics)")
+            f"{airy_radius_px(settings.f_number, 550.0, pitch):.2f} px (scenes.optics.mtf)")
 
 
 def _speckle_render_text(out_dir: Path, settings: PaperSettings) -> str:
@@ -225,7 +225,7 @@ def _speckle_render_text(out_dir: Path, settings: PaperSettings) -> str:
     for stage in ("rigid_motion", "bending"):
         for name, n in ((_metrics(out_dir, stage) or {}).get("speckle_renderers") or {}).items():
             counts[name] = counts.get(name, 0) + int(n)
-    adaptive = (f"adaptive, Monte-Carlo noise target {settings.mc_target_grey:g} grey RMS (scenes.adaptive)")
+    adaptive = (f"adaptive, Monte-Carlo noise target {settings.mc_target_grey:g} grey RMS (scenes.rendering.adaptive)")
     if not counts:
         return adaptive
     names = {**experiment_idics.SPECKLE_RENDERER_TEXT, "mitsuba-adaptive": f"Mitsuba {adaptive}"}
@@ -363,7 +363,7 @@ def _versions() -> list[tuple[str, str]]:
         except metadata.PackageNotFoundError:
             rows.append((n, "not installed"))
     try:
-        from scenes.backend import VARIANT
+        from scenes.optics.backend import VARIANT
         rows.append(("Mitsuba variant", VARIANT))
     except Exception as exc:  # noqa: BLE001 - the report must still be written
         rows.append(("Mitsuba variant", f"unavailable ({exc})"))

@@ -25,11 +25,11 @@ from pathlib import Path
 
 import numpy as np
 
-from scenes.drift import CameraDrift
-from scenes.illumination import IlluminationChange
-from scenes.motion import StageErrors
-from scenes.noise import SensorNoise
-from scenes.targets import Checkerboard
+from scenes.sensor.drift import CameraDrift
+from scenes.sensor.illumination import IlluminationChange
+from scenes.deformation.stage import StageErrors
+from scenes.sensor.noise import SensorNoise
+from scenes.surfaces.checkerboard import Checkerboard
 from workbench.rigs import get_rig
 from workbench.scenario import Instrument, Scenario, dataset_parts, optics_of
 
@@ -95,7 +95,7 @@ def render_calibration_views(scenario: Scenario, folder: Path) -> None:
 
 def states_mm(scenario: Scenario) -> np.ndarray:
     """The stage readings of the scenario: out to ``max_mm`` (and back with ``return_to_zero``)."""
-    from scenes.motion import stage_states_mm
+    from scenes.deformation.stage import stage_states_mm
 
     m = scenario.motion
     try:
@@ -134,7 +134,7 @@ DEFAULT_SPECKLE_PX = 5.0
 
 def specimen_of(scenario: Scenario):
     """The speckled beam for the rig's resolution with the scenario's speckle size, density and contrast."""
-    from scenes.specimens import BendingSpecimen
+    from scenes.specimens.beam import BendingSpecimen
     from workbench.experiments.rigid_motion.scenes import specimen_reference_pose
     from workbench.rigs import get_rig
 

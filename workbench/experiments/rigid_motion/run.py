@@ -25,7 +25,7 @@ from measurement.rigid import fit_rigid
 from measurement.stereo_dic import StereoMatchError, measure_state, reference_shape
 from measurement.uncertainty.calibration import calibration_sensitivity
 from measurement.stereo_io import write_state_vtk
-from scenes.motion import stage_states_mm
+from scenes.deformation.stage import stage_states_mm
 from workbench.experiments.calibration.run import render_content, mc_summary
 from workbench.experiments.rigid_motion.scenes import (known_fraction_range, load_truth, paper_optics,
                                                        render_rigid_motion, speckle_render_content)
@@ -325,9 +325,9 @@ def reproduce_rigid_motion(out_dir: str | Path, *, scale: float = 1.0, calib: st
                            renderer: str = "auto", f_number: float | None = 8.0) -> dict:
     """Render (or reuse) the states, measure them, score against truth, write the report. Returns the metrics.
 
-    ``mc_target_grey``: adaptive renders (:mod:`scenes.adaptive`) at that Monte-Carlo noise instead of ``spp``
+    ``mc_target_grey``: adaptive renders (:mod:`scenes.rendering.adaptive`) at that Monte-Carlo noise instead of ``spp``
     (the rendered calibration too) where Mitsuba renders. ``renderer``: ``"auto"`` renders the speckle states
-    without Monte Carlo where a view allows it (a pinhole: :func:`scenes.exact_render.render_view_exact`),
+    without Monte Carlo where a view allows it (a pinhole: :func:`scenes.rendering.exact.render_view_exact`),
     ``"mitsuba"`` always with Mitsuba; ``metrics["speckle_renderers"]`` counts the images each made.
 
     The states are rendered into the dataset store (``store``, default :func:`workbench.store.default_store_dir`)

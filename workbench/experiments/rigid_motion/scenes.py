@@ -1,9 +1,9 @@
 """The paper's rigid-motion test, truth side: a speckled bending beam on a vertical stage, rendered in stereo.
 
-The beam (:class:`scenes.specimens.BendingSpecimen`) stands with its front-face centre at the point where the
+The beam (:class:`scenes.specimens.beam.BendingSpecimen`) stands with its front-face centre at the point where the
 rig's optical axes meet (~376 mm in front of the left camera), its face normal along the bisector of the two
 cameras, its length horizontal (perpendicular to world y). The stage moves it up in the left image (-y of
-the left camera frame, :data:`scenes.motion.STAGE_UP_WORLD`) 0 -> 10 -> 0 mm in 1 mm steps; both cameras
+the left camera frame, :data:`scenes.deformation.stage.STAGE_UP_WORLD`) 0 -> 10 -> 0 mm in 1 mm steps; both cameras
 render every state (8 bit, read noise sigma = 1 grey level by default) and ``truth.json`` records the
 specimen, its pose in every state and the cameras as rendered.
 
@@ -12,7 +12,7 @@ material point X0; its true position in state k is ``R_k X0 + t_k`` in the world
 :meth:`RigidMotionTruth.points_of_interest`.
 
 Lens: ``"pinhole"`` or ``"thin"``. The thin lens keeps each camera's Scheimpflug-tilted sensor from the rig
-and gets the focal length that focuses the face centre (:func:`scenes.truth.focal_length_for_focus_mm`), at
+and gets the focal length that focuses the face centre (:func:`scenes.optics.projection.focal_length_for_focus_mm`), at
 ``f_number`` (f/8 by default). Note that Table 1's tilts (beta ~ -/+4.5 deg) at this image distance
 (37.6 mm) turn the plane of sharp focus ~50 deg away from a face looking along the bisector, so the face is
 sharp only near its centre line; ``truth.json`` records the largest defocus blur per camera.
@@ -30,16 +30,16 @@ from tqdm import tqdm
 
 from labio.atomic import atomic_write_image, atomic_write_text
 
-from scenes.camera import SensorSpec
-from scenes.drift import CameraDrift, drifted_pose
-from scenes.illumination import IlluminationChange
-from scenes.motion import STAGE_UP_WORLD, StageErrors, stage_direction, stage_poses, stage_states_mm
-from scenes.noise import SensorNoise, to_image_dtype
-from scenes.optics import Optics
-from scenes.render import render_view
-from scenes.specimens import BendingSpecimen
-from scenes.truth import (defocus_blur_px, focal_length_for_focus_mm, in_focus_points_world_mm,
-                          points_of_interest_truth, project_points)
+from scenes.optics.camera import SensorSpec
+from scenes.sensor.drift import CameraDrift, drifted_pose
+from scenes.sensor.illumination import IlluminationChange
+from scenes.deformation.stage import STAGE_UP_WORLD, StageErrors, stage_direction, stage_poses, stage_states_mm
+from scenes.sensor.noise import SensorNoise, to_image_dtype
+from scenes.optics.mtf import Optics
+from scenes.rendering.mitsuba import render_view
+from scenes.specimens.beam import BendingSpecimen
+from scenes.optics.projection import (defocus_blur_px, focal_length_for_focus_mm, in_focus_points_world_mm,
+                                      points_of_interest_truth, project_points)
 from workbench.experiments.calibration.views import EXPOSURE_GREY, sensor_spec_for
 from workbench.manifest import complete_folder, prepare_folder
 from workbench.rigs import StereoRig, facing_plane_world, get_rig
@@ -207,9 +207,9 @@ def rigid_motion_truth(rig: StereoRig, *, lens: str = "thin", f_number: float = 
 
     ``specimen`` defaults to :meth:`BendingSpecimen.for_pixel_size` at the left camera's pixel footprint at
     the working distance (5 px speckles at any ``scale``), with speckle seed ``seed``. ``stage_errors``: the
-    stage really moves the specimen by :func:`scenes.motion.true_stage_displacements_mm` (``states_mm`` stay
+    stage really moves the specimen by :func:`scenes.deformation.stage.true_stage_displacements_mm` (``states_mm`` stay
     the stage's readings). ``lens_terms``: distortion terms of the true lenses the rig's model lacks
-    (``k3``, ``s1``-``s4`` of :class:`scenes.camera.SensorSpec`). ``focus_offset_mm``: a thin lens is focused
+    (``k3``, ``s1``-``s4`` of :class:`scenes.optics.camera.SensorSpec`). ``focus_offset_mm``: a thin lens is focused
     this far beyond the face centre along the left camera's line of sight (a focusing error).
     """
     states = stage_states_mm() if states_mm is None else np.asarray(states_mm, dtype=float).reshape(-1)
@@ -275,10 +275,10 @@ def render_rigid_motion(rig: StereoRig | str, out_dir, scale: float = 1.0, lens:
     overwrite : replace an earlier dataset in ``out_dir`` (deletes exactly the files its manifest lists); without
         it such a folder is refused (:class:`workbench.manifest.DatasetFolderError`)
     stage_errors, drift, illumination, lens_terms, electrons_per_grey : error sources (DESIGN §7), each off by
-        default: the stage's own errors (:class:`scenes.motion.StageErrors`), a camera drifting between states
-        (:class:`scenes.drift.CameraDrift`), an illumination change between states
-        (:class:`scenes.illumination.IlluminationChange`), true-lens terms the rig's model lacks, shot noise.
-    optics : :class:`scenes.optics.Optics`, optional
+        default: the stage's own errors (:class:`scenes.deformation.stage.StageErrors`), a camera drifting between states
+        (:class:`scenes.sensor.drift.CameraDrift`), an illumination change between states
+        (:class:`scenes.sensor.illumination.IlluminationChange`), true-lens terms the rig's model lacks, shot noise.
+    optics : :class:`scenes.optics.mtf.Optics`, optional
         The lens' diffraction (None: ideal optics, the images as rendered).
 
     Returns
@@ -332,14 +332,14 @@ def resolve_rig(rig: StereoRig | str, scale: float) -> tuple[StereoRig, float | 
     return rig, None
 
 
-#: Renderers of speckle states: "auto" (the deterministic renderer, :mod:`scenes.exact_render`, where a view
+#: Renderers of speckle states: "auto" (the deterministic renderer, :mod:`scenes.rendering.exact`, where a view
 #: allows it: a pinhole, or a thin lens' in-focus pixels with adaptive Mitsuba for the rest; Mitsuba otherwise),
 #: "mitsuba" (Monte Carlo: fixed spp or adaptive).
 SPECKLE_RENDERERS = ("auto", "mitsuba")
 
 
 def paper_optics(rig: StereoRig, f_number: float = DEFAULT_F_NUMBER):
-    """The lens' diffraction of the paper's experiments (:class:`scenes.optics.Optics`): f/8, 550 nm, the rig's
+    """The lens' diffraction of the paper's experiments (:class:`scenes.optics.mtf.Optics`): f/8, 550 nm, the rig's
     pixels."""
     return Optics(f_number=f_number, pixel_pitch_mm=rig.pixel_pitch_mm)
 
@@ -367,22 +367,23 @@ def render_stereo_states(truth, surfaces_of_state, n_states: int, out_dir: Path,
 
     ``truth`` provides ``specs`` and ``camera_poses``; ``surfaces_of_state(k)`` the scene of state k. One seed per
     image (``seed * 100003 + 2 k + camera``): Monte-Carlo noise is pixel-locked, so states must not share it.
-    ``drift``: the drifting camera renders state k from :func:`scenes.drift.drifted_pose`; ``illumination``:
-    the scene radiance of state k changes (:meth:`scenes.illumination.IlluminationChange.apply`) before the
+    ``drift``: the drifting camera renders state k from :func:`scenes.sensor.drift.drifted_pose`; ``illumination``:
+    the scene radiance of state k changes (:meth:`scenes.sensor.illumination.IlluminationChange.apply`) before the
     sensor noise. ``renderer`` (:data:`SPECKLE_RENDERERS`): ``"auto"`` renders both cameras of a state with
-    :func:`scenes.exact_render.render_view_exact` (exact coverage, Gauss-Legendre quadrature of the speckle: no
+    :func:`scenes.rendering.exact.render_view_exact` (exact coverage, Gauss-Legendre quadrature of the speckle: no
     Monte-Carlo noise) where it can (a pinhole, no occlusion); with ``mc_target_grey`` also through a thin lens,
     whose in-focus pixels it makes and whose blurred rest Mitsuba's adaptive renderer traces
-    (:func:`scenes.adaptive.render_views_auto`). Mitsuba renders at ``spp``, or, with ``mc_target_grey``, both
-    cameras of a state from one scene with :mod:`scenes.adaptive` at that Monte-Carlo noise; each such image's
+    (:func:`scenes.rendering.adaptive.render_views_auto`). Mitsuba renders at ``spp``, or, with ``mc_target_grey``, both
+    cameras of a state from one scene with :mod:`scenes.rendering.adaptive` at that Monte-Carlo noise; each such image's
     measured noise and sample counts are appended to ``mc_log``. ``render_log`` gets one entry per image: which
     renderer made it (with the share of pixels made without Monte Carlo), and why Mitsuba did where ``"auto"``
-    fell back. ``optics`` (:class:`scenes.optics.Optics`): the lens' diffraction on every render, before the
+    fell back. ``optics`` (:class:`scenes.optics.mtf.Optics`): the lens' diffraction on every render, before the
     illumination change and the sensor; ``supersample``: every view is rendered that many times finer along each
-    axis (:meth:`scenes.camera.SensorSpec.supersampled`) and brought back through ``optics`` (binned). Returns the
+    axis (:meth:`scenes.optics.camera.SensorSpec.supersampled`) and brought back through ``optics`` (binned). Returns the
     file names per state.
     """
-    from scenes.exact_render import RENDERER_OCCLUSION, NotExactError, render_view_exact
+    from scenes.rendering.exact import RENDERER_OCCLUSION
+    from scenes.rendering.render import render_views
 
     if renderer not in SPECKLE_RENDERERS:
         raise ValueError(f"speckle renderer {renderer!r}: choose one of {', '.join(SPECKLE_RENDERERS)}")
@@ -393,41 +394,16 @@ def render_stereo_states(truth, surfaces_of_state, n_states: int, out_dir: Path,
         names = {}
         poses = {side: drifted_pose(*truth.camera_poses[side], drift, k, camera=side) for side in SIDES}
         views = [(truth.specs[side].supersampled(supersample), poses[side]) for side in SIDES]
-        auto, exact, fallback = None, None, None
-        if renderer == "auto" and mc_target_grey is not None:
-            from scenes.adaptive import AdaptiveSettings, render_views_auto
-            auto = render_views_auto(views, surfaces, seed=seed * 100003 + 2 * k, exposure_grey=EXPOSURE_GREY[8],
-                                     settings=AdaptiveSettings(target_mc_grey=mc_target_grey))
-        elif renderer == "auto":
-            try:
-                exact = [render_view_exact(spec, *pose, surfaces, exposure_grey=EXPOSURE_GREY[8]) for spec, pose in views]
-            except NotExactError as err:
-                fallback = str(err)     # at a fixed spp Mitsuba renders the whole view
-        adaptive = None
-        if auto is None and exact is None and mc_target_grey is not None:
-            from scenes.adaptive import AdaptiveSettings, render_views_adaptive
-            adaptive = render_views_adaptive(views, surfaces, seed=seed * 100003 + 2 * k,
-                                             exposure_grey=EXPOSURE_GREY[8],
-                                             settings=AdaptiveSettings(target_mc_grey=mc_target_grey))
+        made = render_views(views, surfaces, renderer=renderer, spp=spp, seed=seed * 100003 + 2 * k,
+                            exposure_grey=EXPOSURE_GREY[8], mc_target_grey=mc_target_grey)
         for c, side in enumerate(SIDES):
             image_seed = seed * 100003 + 2 * k + c
-            entry, mc = {}, None
-            if auto is not None:
-                rendered, made_by, mc = auto[c].image_grey, auto[c].renderer, auto[c].mc
-                if auto[c].fallback:
-                    entry["fallback"] = auto[c].fallback
-                elif made_by == RENDERER_OCCLUSION or made_by.startswith("in-focus"):   # any thin-lens mix
-                    entry["known_fraction"] = round(auto[c].known_fraction, 6)
-            elif exact is not None:
-                rendered, made_by = exact[c][0], exact[c][1]["renderer"]
-            elif adaptive is None:
-                rendered = render_view(views[c][0], *poses[side], surfaces, spp=spp, seed=image_seed,
-                                       exposure_grey=EXPOSURE_GREY[8]).image_grey
-                made_by = "mitsuba"
-            else:
-                rendered, made_by, mc = adaptive[c].image_grey, "mitsuba-adaptive", adaptive[c].mc
-            if fallback and renderer == "auto":
-                entry["fallback"] = fallback
+            view = made[c]
+            rendered, made_by, mc, entry = view.image_grey, view.renderer, view.mc, {}
+            if view.reason:
+                entry["fallback"] = view.reason
+            elif view.known_fraction is not None and (made_by == RENDERER_OCCLUSION or made_by.startswith("in-focus")):
+                entry["known_fraction"] = round(view.known_fraction, 6)   # any thin-lens mix
             if mc is not None and mc_log is not None:
                 mc_log.append({"state": k, "camera": side, **mc})
             if render_log is not None:

@@ -4,7 +4,7 @@ says they are (issue 23's geometry check of the specimen path).
 The catalog's tube (outer radius 57 mm) carries a checker printed on a sheet wrapped round it (squares of
 ``square_mm`` in arc length and along the axis). Its front line is put on the left camera's central pixel column
 at ``distance_mm``, so the view spans more than +-50 deg of arc. The truth of a corner is the material point of the
-curved FE surface whose paint coordinates are a multiple of the square (:meth:`scenes.mesh_specimen.MeshSpecimen.
+curved FE surface whose paint coordinates are a multiple of the square (:meth:`scenes.specimens.mesh_specimen.MeshSpecimen.
 paint_points`), projected by the truth side's camera; the render is the deterministic one (exact polygon coverage
 of the printed squares on the surface's flat pieces, occluding edges traced by Mitsuba). The instrument's corner
 refinement (:func:`measurement.calibration.detection.refine_corners_saddle`, started 0.3 px off) finds the corners
@@ -30,12 +30,12 @@ def checker_corner_agreement(scale: float = 1.0, *, square_mm: float = 2.0, arc_
     import time
 
     from measurement.calibration.detection import refine_corners_saddle
-    from scenes.adaptive import AdaptiveSettings, render_views_auto
-    from scenes.fe_catalog import pressurised_cylinder
-    from scenes.mesh_specimen import MeshSpecimen
-    from scenes.paint import Paint
-    from scenes.surface_mesh import SurfaceMesh
-    from scenes.truth import pixel_rays, project_points
+    from scenes.rendering.render import render_views
+    from scenes.specimens.catalog import pressurised_cylinder
+    from scenes.specimens.mesh_specimen import MeshSpecimen
+    from scenes.surfaces.paint import Paint
+    from scenes.specimens.surface_mesh import SurfaceMesh
+    from scenes.optics.projection import pixel_rays, project_points
     from workbench.experiments.calibration.views import sensor_spec_for
     from workbench.experiments.rigid_motion.scenes import specimen_reference_pose
     from workbench.rigs import get_rig
@@ -55,8 +55,8 @@ def checker_corner_agreement(scale: float = 1.0, *, square_mm: float = 2.0, arc_
     specimen = MeshSpecimen(mesh, fe.displacements_mm[:1], paint, sagitta_mm=sagitta_px * footprint)
     start = time.perf_counter()
     if image is None:
-        auto = render_views_auto([(spec, (R_c, t_c))], specimen.surfaces(0, R0, t0), seed=seed, exposure_grey=255.0,
-                                 settings=AdaptiveSettings(target_mc_grey=0.1))[0]
+        auto = render_views([(spec, (R_c, t_c))], specimen.surfaces(0, R0, t0), seed=seed, exposure_grey=255.0,
+                            mc_target_grey=0.1)[0]
         image, renderer, known = auto.image_grey, auto.renderer, float(auto.known_fraction)
     else:
         image, renderer, known = image["image"], image["renderer"], image["known_fraction"]

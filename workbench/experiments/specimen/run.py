@@ -204,7 +204,7 @@ def reproduce_catalog(out_dir, names=None, *, scale: float = 0.25, subset_size: 
 
     from labio.atomic import atomic_write_text
     from measurement.calibration.io import CalibratedRig
-    from scenes.fe_catalog import CATALOG, write_pvd
+    from scenes.specimens.catalog import CATALOG, write_pvd
     from workbench.experiments.specimen.catalog import scenario_text
     from workbench.config import load_config
     from workbench.experiments.specimen.scenes import load_specimen_truth, render_specimen, rig_of

@@ -1,5 +1,5 @@
 """A specimen of one's own, truth side: a user's mesh or FE result placed before the rig, painted, rendered in
-stereo, with the exact truth of every pixel (:mod:`scenes.mesh_specimen`).
+stereo, with the exact truth of every pixel (:mod:`scenes.specimens.mesh_specimen`).
 
 The scenario's ``[specimen]`` section (:class:`workbench.scenario.SpecimenConfig`) names the file, its field, unit
 and steps, where the mesh goes and how it is painted. The mesh's own frame is turned by ``rotation_deg`` and its
@@ -10,7 +10,7 @@ moves of the last one.
 A dataset folder holds ``left_KK.png`` / ``right_KK.png``, the specimen file itself (the file, and a ``.pvd``'s VTU files: the
 folder is self-contained), ``truth.json`` (cameras, placement, states, paint, masks), ``truth_left.npz`` and
 ``truth_right.npz`` (every pixel of that camera's reference image: the face seen, its ``(s, t)``, the mask bits of
-:data:`scenes.mesh_specimen.MASK_BITS`) and ``truth_states.npz`` (on every ``truth_step_px``-th pixel of the left
+:data:`scenes.specimens.mesh_specimen.MASK_BITS`) and ``truth_states.npz`` (on every ``truth_step_px``-th pixel of the left
 reference image: the material point's displacement in the world frame, its image in both cameras and its exact
 surface strain per state). :func:`load_specimen_truth` reads it back and computes the truth at any pixel.
 """
@@ -25,11 +25,11 @@ from pathlib import Path
 import numpy as np
 
 from labio.atomic import atomic_writer, atomic_write_text
-from scenes.fe_files import read_specimen_file
-from scenes.mesh_specimen import MASK_BITS, MeshSpecimen, PixelTruth, warn_if_aliased
-from scenes.noise import SensorNoise
-from scenes.paint import Paint
-from scenes.surface_mesh import SurfaceMesh
+from scenes.specimens.fe_files import read_specimen_file
+from scenes.specimens.mesh_specimen import MASK_BITS, MeshSpecimen, PixelTruth, warn_if_aliased
+from scenes.sensor.noise import SensorNoise
+from scenes.surfaces.paint import Paint
+from scenes.specimens.surface_mesh import SurfaceMesh
 from workbench.manifest import complete_folder, prepare_folder
 from workbench.rigs import get_rig
 from workbench.scenario import optics_of
@@ -105,7 +105,7 @@ class SpecimenTruth:
         return {side: (self.specs[side], *self.camera_poses[side]) for side in SIDES}
 
     def project(self, side: str, X_world_mm) -> np.ndarray:
-        from scenes.truth import project_points
+        from scenes.optics.projection import project_points
 
         if side not in SIDES:
             raise ValueError(f"camera must be 'left' or 'right', got {side!r}")
@@ -115,8 +115,8 @@ class SpecimenTruth:
         """(face (N,), st (N, 2)) seen at pixels of ``side``'s reference image: the stored map at integer pixels,
         Newton along the pixel's own ray from the nearest pixel's point elsewhere; -1/NaN where the pixel is not
         measurable (any mask bit)."""
-        from scenes.ray_surface import refine_on_surface
-        from scenes.truth import pixel_rays
+        from scenes.specimens.ray_surface import refine_on_surface
+        from scenes.optics.projection import pixel_rays
 
         px = np.asarray(pixels_xy, float).reshape(-1, 2)
         m = self.maps[side]
@@ -176,7 +176,7 @@ class SpecimenTruth:
 # ------------------------------------------------------------------------------------------------------------
 def _placed_mesh(sf, cfg) -> tuple[SurfaceMesh, np.ndarray, dict]:
     """The file's mesh and displacements in the specimen frame (turned, origin moved; displacements turned)."""
-    from scenes.fe_files import UNITS_MM
+    from scenes.specimens.fe_files import UNITS_MM
 
     P = sf.mesh.points_mm
     if cfg.origin_mm is None:
@@ -315,7 +315,7 @@ def render_specimen(scenario, out_dir, *, progress: bool = True, overwrite: bool
     truth = specimen_truth(scenario, progress=progress)
     K = truth.specimen.n_states
     digits = max(2, len(str(K - 1)))
-    from scenes.fe_files import specimen_file_set
+    from scenes.specimens.fe_files import specimen_file_set
 
     src = Path(scenario.specimen.mesh)
     sources = specimen_file_set(src)              # a .pvd collection: its VTU files too

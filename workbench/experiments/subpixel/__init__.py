@@ -3,7 +3,7 @@
 A speckled plate faces a camera square on and moves rigidly in its plane by a fraction of a pixel. Every render
 path draws it (:data:`PATHS`), and a *converged reference* of the same optical model draws it too: ``16 x 16``
 sub-pixel rays per pixel, each meeting the plate, the paint evaluated at that point as what it is defined to be,
-the band-limited interpolant of its pattern samples (:func:`scenes.speckle.fourier_upsample` to at least 16 texels
+the band-limited interpolant of its pattern samples (:func:`scenes.surfaces.speckle.fourier_upsample` to at least 16 texels
 per pixel, then looked up linearly, an error below 1e-5 px) -- not through the texture the renderers look up.
 
 Two figures per path and phase, both by the instrument (2-D subset DIC, second order, biquintic):
@@ -23,11 +23,11 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from scenes.camera import SensorSpec
-from scenes.paint import Paint, layout, pattern, texture
-from scenes.speckle import fourier_upsample
-from scenes.surfaces import TexturedSurface
-from scenes.truth import focal_length_for_focus_mm, pixel_rays
+from scenes.optics.camera import SensorSpec
+from scenes.surfaces.paint import Paint, layout, pattern, texture
+from scenes.surfaces.speckle import fourier_upsample
+from scenes.surfaces.textured_surface import TexturedSurface
+from scenes.optics.projection import focal_length_for_focus_mm, pixel_rays
 
 #: Render paths checked (``pinhole`` quadrature, the occlusion renderer, a thin lens in focus, Mitsuba).
 PATHS = ("quadrature", "occlusion", "thin lens in focus", "mitsuba")
@@ -46,7 +46,7 @@ class PlateScene:
     ``size_px`` pixels a side; the plate covers them with a margin. The paint's speckle is ``speckle_px`` at the
     plate. ``texel_px`` is the pattern's sample spacing (None: the paint's default, speckle / 5); ``lookup_factor``
     overrides the paint's (1: the pattern itself is looked up, as before issue 38; with ``texel_px = 1 / 3.5`` that
-    is the paper's planar specimens' texture, :meth:`scenes.specimens.BendingSpecimen.for_pixel_size`). ``edge_px``:
+    is the paper's planar specimens' texture, :meth:`scenes.specimens.beam.BendingSpecimen.for_pixel_size`). ``edge_px``:
     the speckles' edge width (None: speckle / 6; the pattern is then sampled at ``min(speckle / 5, 2 edge)``);
     ``f_number``: the lens' diffraction on pixels of ``pixel_pitch_mm`` (None: ideal optics), the view rendered
     ``supersample`` times finer first (:func:`render`)."""
@@ -67,7 +67,7 @@ class PlateScene:
 
     @property
     def optics(self):
-        from scenes.optics import Optics
+        from scenes.optics.mtf import Optics
 
         return Optics(f_number=self.f_number, pixel_pitch_mm=self.pixel_pitch_mm)
 
@@ -147,10 +147,10 @@ def render(scene: PlateScene, path: str, offset_px=(0.0, 0.0), *, exposure_grey:
     """The plate moved by ``offset_px`` drawn by one of :data:`PATHS`; (size_px, size_px) float64 grey levels.
     ``quadrature_order`` overrides the deterministic paths' Gauss-Legendre nodes per pixel side. Raises ValueError
     when a deterministic path leaves a pixel of the view unknown."""
-    from scenes.adaptive import AdaptiveSettings, render_views_adaptive
-    from scenes.exact_render import render_view_exact, render_view_in_focus, render_view_occluded
+    from scenes.rendering.adaptive import AdaptiveSettings, render_views_adaptive
+    from scenes.rendering.exact import render_view_exact, render_view_in_focus, render_view_occluded
 
-    from scenes.exact_render import QUADRATURE_ORDER
+    from scenes.rendering.exact import QUADRATURE_ORDER
 
     surfaces = scene.surfaces(offset_px)
     pose = (np.eye(3), np.zeros(3))
@@ -204,7 +204,7 @@ def true_motion_px(scene: PlateScene, xy_px: np.ndarray, offset_px) -> np.ndarra
     """(N, 2) image motion of the plate's points seen at ``xy_px`` when it moves by ``offset_px`` footprints: the
     ray meets the plate, the point moves, and is projected again (not uniform under a tilted sensor or a lens
     distortion)."""
-    from scenes.truth import project_points
+    from scenes.optics.projection import project_points
 
     spec = scene.spec("pinhole")
     O, D = pixel_rays(spec, np.eye(3), np.zeros(3), xy_px)
@@ -303,12 +303,12 @@ def fourier_shift(image: np.ndarray, shift_px) -> np.ndarray:
 
 
 def photo_phase_errors(photo: np.ndarray, phases_px, margin_px: int = 24) -> list[dict]:
-    """The twin's path (:func:`scenes.image_texture.render_deformed_image`: a photograph read as a continuous
+    """The twin's path (:func:`scenes.surfaces.image_texture.render_deformed_image`: a photograph read as a continuous
     texture and moved): for a *periodic* photo, whose exact sub-pixel motion is its band-limited shift
     (:func:`fourier_shift`), the render error (DIC from the exact shift to the twin's image) and the motion error
     (DIC from the photo to the twin's moved image, minus the motion) beside the instrument alone, per phase, on
     points ``margin_px`` inside the image (the texture's mirror boundary errs at its edges)."""
-    from scenes.image_texture import ImageTexture, render_deformed_image
+    from scenes.surfaces.image_texture import ImageTexture, render_deformed_image
 
     texture = ImageTexture.from_image(photo)
     rows = []

@@ -58,7 +58,7 @@ def true_pixels(rig, X_left_mm):
 def _corners(rig, seed: int, corner_noise_px: float, print_error_mm: float):
     """Noisy corners of one calibration's 12 views, {side: (V, N, 2) px}, and the nominal board (N, 3) mm."""
     from measurement.calibration.detection import board_points_mm
-    from scenes.targets import Checkerboard
+    from scenes.surfaces.checkerboard import Checkerboard
     from workbench.experiments.calibration.views import board_outline_mm
     from workbench.poses import random_board_poses
 

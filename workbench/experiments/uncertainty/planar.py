@@ -1,6 +1,6 @@
 """Planar (2-D DIC) classes of the uncertainty proof: one factor at a time around a centre class.
 
-Each class renders an exact Gaussian-blob speckle (:func:`scenes.synthetic_images.gaussian_speckle`) and its exact
+Each class renders an exact Gaussian-blob speckle (:func:`scenes.image_pairs.gaussian_speckle.gaussian_speckle`) and its exact
 deformed image, then ``draws`` times adds fresh 8-bit sensor noise (read noise + quantisation) to both and to a
 second, static copy of the reference. The instrument sees only the images: it correlates the pair, measures the
 noise from the static pair (:func:`measurement.speckle_quality.noise_from_static_pair`, as a careful user would)
@@ -47,7 +47,7 @@ PLANAR_CLASSES = (
 
 
 def _field(kind: str, size: int):
-    from scenes.synthetic_images import QuadraticField, Translation
+    from scenes.image_pairs.analytic_fields import QuadraticField, Translation
 
     if kind == "translation":
         return Translation(0.3, 0.45)
@@ -66,8 +66,8 @@ def run_planar_class(cls: PlanarClass, *, draws: int = 12, seed: int = 0, size: 
     from measurement.dic import DICSettings, correlate
     from measurement.speckle_quality import noise_from_static_pair
     from measurement.uncertainty.match import FLAG_NONE, dic_uncertainty
-    from scenes.noise import SensorNoise
-    from scenes.synthetic_images import extent_for_shape, gaussian_speckle, radius_for_speckle_size
+    from scenes.sensor.noise import SensorNoise
+    from scenes.image_pairs.gaussian_speckle import extent_for_shape, gaussian_speckle, radius_for_speckle_size
 
     shape = (size, size)
     pattern = gaussian_speckle(extent_for_shape(shape, margin_px=16.0), radius_for_speckle_size(cls.speckle_px), 0.5,

@@ -1,7 +1,7 @@
 """Stereo classes of the uncertainty proof: catalog specimens rendered through the paper rig, several noise draws.
 
 Each catalog specimen (the beam in bending, the plate with a hole, the notched coupon: FE solved with scikit-fem,
-:mod:`scenes.fe_catalog`) is rendered as ``workbench reproduce catalog`` renders it (load steps, then a rigid tour
+:mod:`scenes.specimens.catalog`) is rendered as ``workbench reproduce catalog`` renders it (load steps, then a rigid tour
 of 4 moves, then a static state) ``draws`` times, each with a new sensor-noise seed (``render.noise_seed``: the
 same scene, new noise; each draw is a dataset of the store). The instrument measures every draw with the true rig
 and fits the noise to its own stereo match's residuals (no static pair given: its default). Classes pool the states
@@ -49,7 +49,7 @@ def measure_draws(name: str, out_dir: Path, *, scale: float, draws: int, subset_
     from measurement.image_io import read_grey
     from measurement.stereo_dic import StereoMatchError, measure_state, reference_shape
     from measurement.uncertainty.stereo import sigmas
-    from scenes.fe_catalog import CATALOG, write_pvd
+    from scenes.specimens.catalog import CATALOG, write_pvd
     from labio.atomic import atomic_write_text
     from workbench.config import load_config
     from workbench.experiments.specimen.case import measurable_mask

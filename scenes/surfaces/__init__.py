@@ -1,0 +1,24 @@
+"""Surfaces and paint (truth side, floor 2 of ``scenes/``): what a renderer draws and what is painted on it.
+
+* :mod:`~scenes.surfaces.textured_surface` -- the emissive textured triangle mesh every rendered object is;
+* :mod:`~scenes.surfaces.speckle` -- random speckle patterns; :mod:`~scenes.surfaces.paint` -- paint (speckle or
+  checker) laid on a specimen's surface with its size in mm;
+* calibration targets: :mod:`~scenes.surfaces.checkerboard` (the paper's, with print and flatness
+  imperfections), :mod:`~scenes.surfaces.charuco`, :mod:`~scenes.surfaces.dot_grid`;
+* :mod:`~scenes.surfaces.image_texture` -- a photographed speckle image as a texture (the twin's scenes).
+
+May import: ``scenes.optics``, ``scenes._checks``. Never ``measurement/``.
+"""
+import importlib as _importlib
+import warnings as _warnings
+
+#: Names of the former flat module ``scenes.surfaces`` (now :mod:`scenes.surfaces.textured_surface`).
+_MOVED = {"TexturedSurface": "scenes.surfaces.textured_surface"}
+
+
+def __getattr__(name):
+    if name in _MOVED:
+        _warnings.warn(f"scenes.surfaces.{name} moved to {_MOVED[name]}.{name}; the old path goes in the next "
+                       f"release", DeprecationWarning, stacklevel=2)
+        return getattr(_importlib.import_module(_MOVED[name]), name)
+    raise AttributeError(f"module 'scenes.surfaces' has no attribute {name!r}")
