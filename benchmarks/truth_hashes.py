@@ -97,10 +97,12 @@ def twin(work: Path) -> list[str]:
     import skfem
     from skfem.io.meshio import to_meshio
 
+    import importlib
+
     try:
-        from scenes.specimens.fe_files import write_exodus
+        write_exodus = importlib.import_module("scenes.specimens.fe_files").write_exodus
     except ImportError:  # before the move into rooms (issue 41)
-        from scenes.specimens.fe_files import write_exodus
+        write_exodus = importlib.import_module("scenes.fe_files").write_exodus
 
     folder = work / "twin"
     folder.mkdir()

@@ -5,7 +5,7 @@ import sys
 
 import pytest
 
-from scenes.optics.mtf import backend
+from scenes.optics import backend
 
 
 def test_a_usable_libllvm_is_found():

@@ -1144,3 +1144,20 @@ def static_repeat_covariance_px2(cov_reference_px2: np.ndarray) -> np.ndarray:
     if cov.ndim != 3 or cov.shape[1:] != (2, 2):
         raise ValueError(f"cov_reference_px2 must have shape (N, 2, 2), got {cov.shape}")
     return 2.0 * cov
+
+
+def static_repeat_sigma_px(reference, x_px, y_px, settings, noise: NoiseModel) -> np.ndarray:
+    """The predicted 1-sigma of (u, v) for a static repeat of ``reference`` at the points, (N, 2) px.
+
+    :func:`reference_subsets` at the points with the camera's noise model, then
+    :func:`static_repeat_covariance_px2`; NaN where the subset's Hessian is singular or the subset leaves the image.
+    ``settings``: the :class:`measurement.dic.DICSettings` the match runs with (subset, order, interpolation,
+    low-pass). What a digital twin predicts from one reference image.
+    """
+    prepared = prepare_image(np.asarray(reference), settings.interpolation, True, "reference",
+                             settings.lowpass_sigma_px)
+    subsets = reference_subsets(prepared, np.asarray(x_px, dtype=np.int64), np.asarray(y_px, dtype=np.int64),
+                                settings.subset_size, settings.order, noise, settings.interpolation)
+    from measurement.uncertainty.stereo import sigmas
+
+    return sigmas(static_repeat_covariance_px2(subsets.cov_uv_reference))

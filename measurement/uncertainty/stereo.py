@@ -149,3 +149,21 @@ def state_bias_bound_mm(G_ref: np.ndarray, G_def: np.ndarray, bias_bound_px: np.
     a = np.abs(G_def[:, :, :2]) + np.abs(G_def[:, :, 2:])
     X = np.einsum("kij,kj->ki", a, bias_bound_px)
     return X, X + shape_bias_bound_mm(G_ref, bias_bound_px)
+
+
+def static_repeat_sigma_um(calibration, shape) -> np.ndarray:
+    """The predicted 1-sigma of U, V, W for a static repeat of a measured reference shape, (N, 3) µm.
+
+    :func:`static_repeat_covariance_mm2` with the shape's own match uncertainty (the noise models it was measured
+    with): the left camera's part from its reference subsets, the right one's from the stereo match; NaN where the
+    shape has none. ``calibration``: the stereo calibration the shape was triangulated with (``left``, ``right``,
+    ``R_right_from_left``, ``T_right_from_left_mm``); ``shape``: a :class:`measurement.stereo_dic.ReferenceShape`
+    measured with its uncertainty. What a digital twin predicts for a rig before any static pair is recorded.
+    """
+    unc = shape.match_uncertainty
+    if unc is None or shape.subsets is None:
+        return np.full((shape.x.size, 3), np.nan)
+    G = triangulation_sensitivity(calibration.left, calibration.right, calibration.R_right_from_left,
+                                  calibration.T_right_from_left_mm, shape.X_mm)
+    left = np.where(np.isfinite(unc.sigma_u_px)[:, None, None], shape.subsets.cov_uv_reference, np.nan)
+    return sigmas(static_repeat_covariance_mm2(G, left, unc.cov_target_px2)) * 1e3

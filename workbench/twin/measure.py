@@ -24,12 +24,11 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from measurement.dic import DICSettings, correlate
-from measurement.dic.correlate import prepare_image
 from measurement.rigid import remove_rigid_motion
 from measurement.stereo_dic import measure_state, reference_shape
 from measurement.strain import surface_strain
-from measurement.uncertainty.match import reference_subsets, static_repeat_covariance_px2
-from measurement.uncertainty.stereo import sigmas, static_repeat_covariance_mm2, triangulation_sensitivity
+from measurement.uncertainty.match import static_repeat_sigma_px
+from measurement.uncertainty.stereo import static_repeat_sigma_um
 
 #: A point whose value lies beyond this many robust sigma (1.4826 MAD) of the median is an outlier (a bad match),
 #: dropped from the noise figures alike for the real pair and the twin.
@@ -142,33 +141,6 @@ def _rms_over(sigma: np.ndarray, ok: np.ndarray, names) -> dict:
     return out
 
 
-def instrument_sigma_stereo(rig, shape) -> np.ndarray:
-    """The instrument's predicted sigma of U, V, W for a static repeat of ``shape``'s reference pair, (N, 3) µm.
-
-    :func:`measurement.uncertainty.stereo.static_repeat_covariance_mm2` with the shape's own match uncertainty
-    (the noise models it was measured with): the left camera's part from its reference subsets, the right one's
-    from the stereo match; NaN where the shape has none."""
-    unc = shape.match_uncertainty
-    if unc is None or shape.subsets is None:
-        return np.full((shape.x.size, 3), np.nan)
-    G = triangulation_sensitivity(rig.left, rig.right, rig.R_right_from_left, rig.T_right_from_left_mm, shape.X_mm)
-    left = np.where(np.isfinite(unc.sigma_u_px)[:, None, None], shape.subsets.cov_uv_reference, np.nan)
-    return sigmas(static_repeat_covariance_mm2(G, left, unc.cov_target_px2)) * 1e3
-
-
-def instrument_sigma_2d(reference, x_px, y_px, settings: DICSettings, noise) -> np.ndarray:
-    """The instrument's predicted sigma of u, v for a static repeat of ``reference``, (N, 2) px.
-
-    :func:`measurement.uncertainty.match.reference_subsets` at the points with the camera's noise model, then
-    :func:`measurement.uncertainty.match.static_repeat_covariance_px2`; NaN where the subset's Hessian is singular
-    or the subset leaves the image."""
-    prepared = prepare_image(np.asarray(reference), settings.interpolation, True, "reference",
-                             settings.lowpass_sigma_px)
-    subsets = reference_subsets(prepared, np.asarray(x_px, dtype=np.int64), np.asarray(y_px, dtype=np.int64),
-                                settings.subset_size, settings.order, noise, settings.interpolation)
-    return sigmas(static_repeat_covariance_px2(subsets.cov_uv_reference))
-
-
 def strain_noise(X_ref: np.ndarray, X_def: np.ndarray, x, y, window: int | None) -> dict:
     """1 sigma of E11, E22, E12 (µε) of a static pair's points on their grid (``surface_strain`` with ``window``
     grid points, or triangles for None); empty when the grid is smaller than the window."""
@@ -222,7 +194,7 @@ def static_noise_stereo(rig, left_ref, right_ref, left_static, right_static, set
     ok = state.valid & ~bad & np.all(np.isfinite(U_um), axis=1)
     sigma = None
     if noise is not None:
-        sigma = instrument_sigma_stereo(rig, shape)
+        sigma = static_repeat_sigma_um(rig, shape)
     values = np.where(ok[:, None], U_um - np.nanmean(U_um[ok], axis=0), np.nan)
     figures = {f"{c}_um": _std(values[:, k]) for k, c in enumerate("UVW")}
     detrended = {}
@@ -259,7 +231,7 @@ def static_noise_2d(reference, static, settings: DICSettings, *, roi=None, mask=
     ok = result.converged & ~bad & np.all(np.isfinite(uv), axis=1)
     sigma = None
     if noise is not None:
-        sigma = instrument_sigma_2d(reference, result.x, result.y, settings, noise)
+        sigma = static_repeat_sigma_px(reference, result.x, result.y, settings, noise)
         sigma[~result.converged] = np.nan           # as the stereo shape: no match, no sigma
     values = np.where(ok[:, None], uv - np.nanmean(uv[ok], axis=0), np.nan)
     figures = {"u_px": _std(values[:, 0]), "v_px": _std(values[:, 1])}
