@@ -88,6 +88,16 @@ class _Finder(importlib.abc.MetaPathFinder):
         return None
 
 
+def moved_name(room: str, moved: dict[str, str], name: str):
+    """A room package's ``__getattr__``: a name of the room's former flat module, from where it lives now, with a
+    DeprecationWarning (``moved``: name -> its module now)."""
+    if name in moved:
+        warnings.warn(f"{room}.{name} moved to {moved[name]}.{name}; the old path goes in the next release",
+                      DeprecationWarning, stacklevel=3)
+        return getattr(importlib.import_module(moved[name]), name)
+    raise AttributeError(f"module {room!r} has no attribute {name!r}")
+
+
 def install() -> None:
     """Put the finder on ``sys.meta_path`` once (after the normal finders: a real module always wins)."""
     if not any(isinstance(f, _Finder) for f in sys.meta_path):

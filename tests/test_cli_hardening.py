@@ -250,17 +250,17 @@ def test_truth_and_manifest_are_written_last(tmp_path, monkeypatch):
 
 
 def test_an_interrupted_render_is_never_a_dataset(tmp_path, capsys, monkeypatch):
-    import workbench.experiments.calibration.views as cbv
+    import scenes.rendering.render as render
 
-    real, calls = cbv._render_exact, []
+    real, calls = render.render_views, []
 
-    def render_then_interrupt(*args, **kwargs):      # the board renderer in use: one call renders a stereo view
+    def render_then_interrupt(*args, **kwargs):      # the one render entry: one call renders a stereo view
         calls.append(1)
         if len(calls) == 2:
             raise KeyboardInterrupt
         return real(*args, **kwargs)
 
-    monkeypatch.setattr(cbv, "_render_exact", render_then_interrupt)
+    monkeypatch.setattr(render, "render_views", render_then_interrupt)
     out = tmp_path / "views"
     assert _render(out, 2) == 130
     assert sorted(p.name for p in out.iterdir()) == [PENDING_NAME, "left_000.png", "right_000.png"]

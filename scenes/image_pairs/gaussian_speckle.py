@@ -7,7 +7,8 @@ deformed pixel grid (:meth:`GaussianSpeckle.render_deformed`), for any smooth di
 ``HomogeneousStrain``, ``Rotation``, ``QuadraticField``), whose conventions (pixel coordinates, point sampling)
 hold here. The other exact pairs, by Fourier shifting, are :mod:`scenes.image_pairs.fourier_shift`.
 
----------------------------------------------
+Sizes, density and aliasing
+---------------------------
 The pattern is ``I(X) = background - amplitude * sum_k exp(-|X - X_k|^2 / (2 s_k^2))`` (dark blobs on a
 bright background). Centres ``X_k`` are a Poisson process; the blob *radius* follows Zhou & Goodson (2001),
 ``R_k = sqrt(2) s_k``, so each blob is ``exp(-r^2 / R_k^2)``. With ``density`` ``d`` the centre rate is

@@ -9,8 +9,7 @@
 
 May import: ``scenes._checks`` only (it is the lowest room). Never ``measurement/``.
 """
-import importlib as _importlib
-import warnings as _warnings
+from scenes import _legacy
 
 #: Names of the former flat module ``scenes.optics`` (now :mod:`scenes.optics.mtf`), kept for one release.
 _MOVED = {name: "scenes.optics.mtf" for name in (
@@ -19,8 +18,4 @@ _MOVED = {name: "scenes.optics.mtf" for name in (
 
 
 def __getattr__(name):
-    if name in _MOVED:
-        _warnings.warn(f"scenes.optics.{name} moved to {_MOVED[name]}.{name}; the old path goes in the next release",
-                       DeprecationWarning, stacklevel=2)
-        return getattr(_importlib.import_module(_MOVED[name]), name)
-    raise AttributeError(f"module 'scenes.optics' has no attribute {name!r}")
+    return _legacy.moved_name("scenes.optics", _MOVED, name)

@@ -32,12 +32,12 @@ from scenes.optics.backend import dr, mi
 PLUGIN_NAME = "scheimpflug"
 
 #: Fixed-point iterations of the per-ray undistortion. The error shrinks per step by about the slope of the
-#: distortion, ~|2 k1 r^2 + 4 k2 r^4 + 6 k3 r^6| + 2 |s| r (~1e-2 at Table 1's corners, r ~ 0.15), so for a
+#: distortion, ~abs(2 k1 r^2 + 4 k2 r^4 + 6 k3 r^6) + 2 abs(s) r (~1e-2 at Table 1's corners, r ~ 0.15), so for a
 #: Brown-only lens like Table 1's, 8 iterations are far below float32 resolution.
 UNDISTORT_ITERATIONS = 8
 #: Iterations for a lens with any of the k3 / thin-prism terms. Those matter most on wide fields, where the
 #: contraction is slowest. Measured (tests/test_lens_terms.py: plugin rays vs the float64 truth, 1600 x 1200
-#: px, fx = 2000 px, tilt (2, -3) deg, |s_i| <= 1e-3, image corners at r = 0.48-0.58), worst error in
+#: px, fx = 2000 px, tilt (2, -3) deg, abs(s_i) <= 1e-3, image corners at r = 0.48-0.58), worst error in
 #: normalised units, where float32 rounding alone gives ~1e-7 (2e-4 px): k3 = 1 alone, k3 = 1 with Table 1's
 #: k1, k2, with k1 = -0.3, or with k1 = +0.3 (9 % pincushion): at that floor with 8 iterations already; but
 #: k1 = -0.3, k2 = 0.2, k3 = -1 (8 % barrel, k1 and k3 adding up): 2.4e-5 after 8, 6.2e-7 after 12, 1.0e-7
@@ -73,13 +73,13 @@ class SensorSpec:
     * ``k3`` (unitless, r^6 radial term): it moves an image point by ``fx |k3| r^7`` px at radius r. On
       industrial C-mount lenses of 25-35 mm it is worth a few px at the image corners: the VIC-3D
       calibration of the Stereo-DIC Challenge 1.0 Sample 3 has kappa3 terms worth 1.6-3.3 px there. As a
-      coefficient of r^6 its value depends on the field of view: |k3| up to ~1 with corners at r ~ 0.5
+      coefficient of r^6 its value depends on the field of view: abs(k3) up to ~1 with corners at r ~ 0.5
       (wide angle), while 2.5 px needs k3 ~ 7 at r = 0.25 (fx = 6000 px) and ~ 45 at the far corner of
       Table 1's left camera (r = 0.175, fx = 10 912 px, where k3 = 1 is only 0.06 px).
     * ``s1, s2`` (x) and ``s3, s4`` (y) (unitless): thin-prism distortion from decentred or tilted lens
       elements and a lens not parallel to the sensor (Weng, Cohen, Herniou 1992, "Camera calibration with
       distortion models and accuracy evaluation", IEEE PAMI 14(10):965-980); typical magnitudes
-      |s_i| ~ 1e-4-1e-3. ``s1`` shifts a corner by ``fx s1 r^2`` px: 0.02-0.24 px on Table 1's rig,
+      abs(s_i) ~ 1e-4-1e-3. ``s1`` shifts a corner by ``fx s1 r^2`` px: 0.02-0.24 px on Table 1's rig,
       0.05-0.5 px at r = 0.5 with fx = 2000 px.
 
     All numeric fields must be finite (ValueError naming the field).

@@ -470,18 +470,26 @@ def _target_missed(mc: dict) -> str | None:
 class AutoRender:
     """One view of :func:`render_views_auto`: the image, which renderer made it, and how.
 
-    image_grey : (H, W) float32, grey levels before sensor noise
-    renderer : :data:`scenes.rendering.exact.RENDERER` / ``RENDERER_QUADRATURE`` (no Monte Carlo at all),
-        :data:`scenes.rendering.defocus_quadrature.RENDERER_THIN_LENS` (a thin lens, no Monte Carlo: in focus and blurred flat
-        faces), :data:`scenes.rendering.defocus_quadrature.RENDERER_THIN_LENS_ADAPTIVE` (the same and Mitsuba's adaptive
-        renders for the rest), :data:`scenes.rendering.exact.RENDERER_IN_FOCUS` (in-focus pixels without Monte Carlo,
-        the rest adaptive Mitsuba) or ``"mitsuba-adaptive"``
-    mc : the adaptive render's noise figures (:func:`render_views_adaptive`), None where Mitsuba traced nothing
-    known_fraction : share of the view's lit pixels made without Monte Carlo
-    fallback : why the deterministic renderer could not be used at all, or None
-    defocus_error_grey : where blurred flat faces were made by quadrature
-        (:func:`scenes.rendering.defocus_quadrature.fill_defocused_faces`), the largest RMS error measured for its rules
-        against the dense rule, grey; else None
+    Attributes
+    ----------
+    image_grey : ndarray (H, W) float32
+        Grey levels before sensor noise.
+    renderer : str
+        :data:`scenes.rendering.exact.RENDERER` / ``RENDERER_QUADRATURE`` (no Monte Carlo at all),
+        :data:`scenes.rendering.defocus_quadrature.RENDERER_THIN_LENS` (a thin lens, no Monte Carlo: in focus
+        and blurred flat faces), :data:`scenes.rendering.defocus_quadrature.RENDERER_THIN_LENS_ADAPTIVE` (the
+        same and Mitsuba's adaptive renders for the rest), :data:`scenes.rendering.exact.RENDERER_IN_FOCUS`
+        (in-focus pixels without Monte Carlo, the rest adaptive Mitsuba) or ``"mitsuba-adaptive"``.
+    mc : dict or None
+        The adaptive render's noise figures (:func:`render_views_adaptive`), None where Mitsuba traced nothing.
+    known_fraction : float
+        Share of the view's lit pixels made without Monte Carlo.
+    fallback : str or None
+        Why the deterministic renderer could not be used at all.
+    defocus_error_grey : float or None
+        Where blurred flat faces were made by quadrature
+        (:func:`scenes.rendering.defocus_quadrature.fill_defocused_faces`), the largest RMS error measured for its
+        rules against the dense rule, grey.
     """
 
     image_grey: np.ndarray

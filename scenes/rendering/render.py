@@ -50,20 +50,30 @@ RENDERER_MITSUBA_ADAPTIVE = "mitsuba-adaptive"
 class RenderedView:
     """One view of :func:`render_views`.
 
-    image_grey : (H, W) float grey levels before sensor noise
-    renderer : which renderer made it (:data:`scenes.rendering.exact.RENDERER` and its relatives, the thin-lens
-        mixes of :mod:`scenes.rendering.defocus_quadrature`, :data:`RENDERER_MITSUBA`,
-        :data:`RENDERER_MITSUBA_ADAPTIVE`, :data:`RENDERER_PHOTO`)
-    reason : why Monte Carlo rendered the whole view where the deterministic renderers were asked first (the
-        refusal of the view :attr:`reason_view`), else None
-    reason_view : index of the view whose deterministic render was refused, else None
-    known_fraction : share of the view's lit pixels made without Monte Carlo (``auto`` with ``mc_target_grey``),
-        else None
-    mc : the adaptive render's measured noise and sample counts (:func:`scenes.rendering.adaptive
-        .render_views_adaptive`), None where Mitsuba traced nothing or rendered at a fixed spp
-    defocus_error_grey : the largest RMS error of the thin-lens quadrature's rules against a denser rule, grey,
-        where blurred faces were made by quadrature; else None
-    valid : (H, W) bool, pixels that show the surface (a photographed texture's view), else None
+    Attributes
+    ----------
+    image_grey : ndarray (H, W)
+        Grey levels before sensor noise.
+    renderer : str
+        Which renderer made it: :data:`scenes.rendering.exact.RENDERER` and its relatives, the thin-lens mixes of
+        :mod:`scenes.rendering.defocus_quadrature`, :data:`RENDERER_MITSUBA`, :data:`RENDERER_MITSUBA_ADAPTIVE`,
+        :data:`RENDERER_PHOTO`.
+    reason : str or None
+        Why Monte Carlo rendered the whole view where the deterministic renderers were asked first (the refusal
+        of the view :attr:`reason_view`).
+    reason_view : int or None
+        Index of the view whose deterministic render was refused.
+    known_fraction : float or None
+        Share of the view's lit pixels made without Monte Carlo (``auto`` with ``mc_target_grey``).
+    mc : dict or None
+        The adaptive render's measured noise and sample counts
+        (:func:`scenes.rendering.adaptive.render_views_adaptive`); None where Mitsuba traced nothing or rendered
+        at a fixed spp.
+    defocus_error_grey : float or None
+        The largest RMS error of the thin-lens quadrature's rules against a denser rule, grey, where blurred faces
+        were made by quadrature.
+    valid : ndarray (H, W) bool or None
+        Pixels that show the surface (a photographed texture's view).
     """
 
     image_grey: np.ndarray

@@ -12,16 +12,11 @@
 May import: ``scenes.deformation``, ``scenes.surfaces``, ``scenes.optics``, ``scenes._checks``. Never
 ``measurement/``.
 """
-import importlib as _importlib
-import warnings as _warnings
+from scenes import _legacy
 
 #: Names of the former flat module ``scenes.specimens``, kept for one release.
 _MOVED = {"SpeckledPlate": "scenes.specimens.plate", "BendingSpecimen": "scenes.specimens.beam"}
 
 
 def __getattr__(name):
-    if name in _MOVED:
-        _warnings.warn(f"scenes.specimens.{name} moved to {_MOVED[name]}.{name}; the old path goes in the next "
-                       f"release", DeprecationWarning, stacklevel=2)
-        return getattr(_importlib.import_module(_MOVED[name]), name)
-    raise AttributeError(f"module 'scenes.specimens' has no attribute {name!r}")
+    return _legacy.moved_name("scenes.specimens", _MOVED, name)

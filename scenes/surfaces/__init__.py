@@ -9,16 +9,11 @@
 
 May import: ``scenes.optics``, ``scenes._checks``. Never ``measurement/``.
 """
-import importlib as _importlib
-import warnings as _warnings
+from scenes import _legacy
 
 #: Names of the former flat module ``scenes.surfaces`` (now :mod:`scenes.surfaces.textured_surface`).
 _MOVED = {"TexturedSurface": "scenes.surfaces.textured_surface"}
 
 
 def __getattr__(name):
-    if name in _MOVED:
-        _warnings.warn(f"scenes.surfaces.{name} moved to {_MOVED[name]}.{name}; the old path goes in the next "
-                       f"release", DeprecationWarning, stacklevel=2)
-        return getattr(_importlib.import_module(_MOVED[name]), name)
-    raise AttributeError(f"module 'scenes.surfaces' has no attribute {name!r}")
+    return _legacy.moved_name("scenes.surfaces", _MOVED, name)

@@ -140,6 +140,8 @@ class Checkerboard:
     corner_noise_seed : int
         Seed of the corner noise (``numpy.random.default_rng``), >= 0: same seed, same board.
 
+    Notes
+    -----
     ``is_dark``, ``radiance_at`` and ``texture`` always describe the *nominal* (perfect, flat) print, in the
     board frame: they are the pattern model an instrument would fit. The truth of an imperfect board is
     :meth:`true_corners_board_mm` and the mesh of :meth:`surface`.

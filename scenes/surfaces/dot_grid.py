@@ -41,14 +41,14 @@ class DotGrid:
         of 8 whose inscribed polygon stays within ``FACET_TOLERANCE_MM`` (0.05 µm) of the circle
         (352 sides for a 2.5 mm dot). Any even count keeps the polygon's centroid on the true centre.
 
+    Notes
+    -----
     Rendering: :meth:`surface` is always a triangle mesh (:meth:`board_mesh`): the sheet is cut into one square
     cell per pitch around every dot, each a fan (the dot) plus a ring of quads to the cell's edge, both colours
     picked from a 2-texel nearest-filter texture, so every dot edge is mathematically sharp and the rendered
     pixels are exact area integrals of the print (up to Monte-Carlo sampling).
 
-    Perspective eccentricity (why the truth is *not* the centre of the imaged ellipse)
-    ---------------------------------------------------------------------------------
-    The image of a circle under perspective is an ellipse (a conic) whose centre is *not* the image of the
+    **Perspective eccentricity** (why the truth is *not* the centre of the imaged ellipse). The image of a circle under perspective is an ellipse (a conic) whose centre is *not* the image of the
     circle's centre unless the board is parallel to the image plane (e.g. Heikkilä, 2000, IEEE TPAMI 22(10),
     "Geometric camera calibration using circular control points"; Mallon & Whelan, 2007, Pattern Recognition
     Letters 28(8)). A blob detector finds the centroid of the imaged dot; the truth of a dot is the
