@@ -193,6 +193,41 @@ class MeshSpecimen:
         mask[rows[good][unpainted], cols[good][unpainted]] |= UNPAINTED
         return PixelTruth(face, st, mask)
 
+    def material_points_at(self, spec: SensorSpec, R_cam_from_world, t_cam_from_world_mm, R_world_from_specimen,
+                           t_world_from_specimen_mm, pixels_xy, k: int = 0) -> tuple[np.ndarray, np.ndarray]:
+        """The material points ``(face (M,), st (M, 2))`` one camera sees at pixel positions ``pixels_xy`` (M, 2)
+        (sub-pixel allowed) in state k: the chief ray of each position, started on the flat piece its nearest pixel
+        centre sees and refined onto the curved deformed face (:func:`scenes.specimens.ray_surface
+        .refine_on_surface`). -1 / NaN where the ray misses the surface or leaves the image."""
+        from scenes.optics.projection import pixel_rays
+
+        p = np.asarray(pixels_xy, float).reshape(-1, 2)
+        face = np.full(len(p), -1, np.int64)
+        st = np.full((len(p), 2), np.nan)
+        hits = cast_rays(spec, R_cam_from_world, t_cam_from_world_mm,
+                         self.vertices_world(k, R_world_from_specimen, t_world_from_specimen_mm),
+                         self.tessellation.triangles)
+        H, W = hits.triangle.shape
+        col, row = np.rint(p[:, 0]), np.rint(p[:, 1])
+        inside = np.all(np.isfinite(p), axis=1) & (col >= 0) & (col < W) & (row >= 0) & (row < H)
+        idx = np.flatnonzero(inside)
+        r, c = row[idx].astype(np.int64), col[idx].astype(np.int64)
+        tri = hits.triangle[r, c]
+        seen = tri >= 0
+        idx, r, c, tri = idx[seen], r[seen], c[seen], tri[seen]
+        if not len(idx):
+            return face, st
+        b = hits.bary[r, c]
+        corners = self.tessellation.triangle_st[tri]
+        st0 = corners[:, 0] + b[:, :1] * (corners[:, 1] - corners[:, 0]) + b[:, 1:] * (corners[:, 2] - corners[:, 0])
+        f = self.tessellation.triangle_face[tri]
+        o, d = pixel_rays(spec, R_cam_from_world, t_cam_from_world_mm, p[idx])
+        R, t = self.state_pose(k, R_world_from_specimen, t_world_from_specimen_mm)
+        st1, _ = refine_on_surface(self.mesh, f, st0, self.displacements_mm[k], o, d, R, t)
+        good = np.all(np.isfinite(st1), axis=1)
+        face[idx[good]], st[idx[good]] = f[good], st1[good]
+        return face, st
+
     def follow(self, face, st, cameras: dict, R_world_from_specimen, t_world_from_specimen_mm, hits_of=None
                ) -> tuple[np.ndarray, dict, np.ndarray]:
         """Material points ``(face (M,), st (M, 2))`` through every state and camera.

@@ -14,6 +14,7 @@ the exact displacement gradients of both states (:meth:`BendingTruth.strain_trut
 """
 from __future__ import annotations
 
+import functools
 import json
 import warnings
 from dataclasses import dataclass, field
@@ -27,8 +28,7 @@ from scenes.optics.camera import SensorSpec
 from scenes.deformation.beam_bending import ThreePointBending, three_point_bending_field
 from scenes.sensor.noise import SensorNoise
 from scenes.specimens.beam import BendingSpecimen
-from scenes.optics.projection import (focal_length_for_focus_mm, intersect_deformed_front_face, pixel_rays,
-                                      project_points)
+from scenes.optics.projection import focal_length_for_focus_mm, project_points
 from workbench.experiments.calibration.views import sensor_spec_for
 from workbench.manifest import complete_folder, prepare_folder
 from workbench.experiments.rigid_motion.scenes import (BLUR_WARNING_PX, check_specimen_in_view, face_blur_px,
@@ -38,6 +38,10 @@ from workbench.rigs import DEFAULT_F_NUMBER, StereoRig
 
 SIDES = ("left", "right")
 LENSES = ("thin", "pinhole")
+#: Largest distance between the flat pieces rendered and the FE solution's curved faces, px of the face's footprint.
+SAGITTA_PX = 0.02
+#: Material points within this distance of the plane z = 0 lie on the front face, mm.
+FRONT_FACE_TOL_MM = 1e-9
 #: The paper's loads (§4.4): a 20 N reference, then 200 -> 2000 N in 200 N steps.
 BENDING_LOADS_N = (20.0,) + tuple(200.0 * k for k in range(1, 11))
 
@@ -76,38 +80,72 @@ class BendingTruth:
             raise ValueError(f"camera must be 'left' or 'right', got {side!r}")
         return project_points(self.specs[side], *self.camera_poses[side], X_world_mm)
 
+    @functools.cached_property
+    def mesh_specimen(self):
+        """The beam through the generic specimen path (:class:`scenes.specimens.mesh_specimen.MeshSpecimen`): the
+        outer surface of its finite-element solution (curved 9-node faces of the 27-node hexahedra), the nodal
+        displacements of every load, painted with the specimen's own speckle texture on the front face (the
+        material coordinates ``x, y`` of the face are the paint's plane) and its side grey elsewhere. What is
+        rendered and what every truth is computed from: one FE path for every specimen."""
+        from scenes.deformation.beam_bending import solve_three_point_bending
+        from scenes.specimens.mesh_specimen import MeshSpecimen
+        from scenes.specimens.surface_mesh import SurfaceMesh
+        from scenes.surfaces.paint import Paint
+
+        sp = self.specimen
+        m = solve_three_point_bending(self.beam).to_meshio(1.0)
+        mesh = SurfaceMesh.from_volume_cells(m.points, {c.type: c.data for c in m.cells}, "the bending beam's FE mesh")
+        unit = np.asarray(m.point_data["displacement"], float)
+        footprint_mm = float(np.linalg.norm(self.pose[1])) / self.specs["left"].fx
+        return MeshSpecimen(mesh, np.stack([unit * float(load) for load in self.loads_N]),
+                            Paint(base_grey=sp.side_grey), sagitta_mm=SAGITTA_PX * footprint_mm,
+                            texture=sp.texture(), texture_origin_mm=(-0.5 * sp.length_mm, -0.5 * sp.height_mm),
+                            texture_size_mm=(sp.length_mm, sp.height_mm))
+
+    def surfaces(self, k: int):
+        """What is rendered in state k (world frame): :meth:`scenes.specimens.mesh_specimen.MeshSpecimen.surfaces`."""
+        return self.mesh_specimen.surfaces(k, *self.pose)
+
     def points_of_interest(self, pixels_left_ref) -> tuple[np.ndarray, np.ndarray]:
         """Truth of DIC points defined at pixels of the left reference image (state 0).
 
+        The chief ray of each pixel meets the front face deformed by the reference load at a material point
+        (:meth:`scenes.specimens.mesh_specimen.MeshSpecimen.material_points_at`), followed through every state by
+        the FE solution's nodal displacements on the face.
+
         Returns
         -------
-        X_specimen_mm : (N, 3) material points on the front face (NaN where the pixel misses it)
+        X_specimen_mm : (N, 3) material points on the front face, unloaded coordinates (NaN where the pixel misses
+            it)
         X_world_mm : (K, N, 3) their true positions in every state, world (= left camera) frame
         """
-        o, d = pixel_rays(self.specs["left"], *self.camera_poses["left"], pixels_left_ref)
-        _, X0 = intersect_deformed_front_face(o, d, self.specimen, *self.pose, self.field(0))
+        ms = self.mesh_specimen
+        face, st = ms.material_points_at(self.specs["left"], *self.camera_poses["left"], *self.pose,
+                                         pixels_left_ref, k=0)
+        X0 = np.full((len(face), 3), np.nan)
+        hit = face >= 0
+        X0[hit] = ms.mesh.positions(face[hit], st[hit])
+        ok = hit & (np.abs(X0[:, 2]) <= FRONT_FACE_TOL_MM)      # the front face only (not its top/bottom edges)
+        X0[~ok] = np.nan
+        X0[ok, 2] = 0.0                       # on the plane z = 0 (its faces' interpolation rounds to ~1e-16)
         R, t = self.pose
         X_world = np.full((len(self.loads_N), len(X0), 3), np.nan)
-        ok = np.all(np.isfinite(X0), axis=1)
         for k in range(len(self.loads_N)):
-            X_world[k, ok] = (X0[ok] + self.field(k).displacement_mm(X0[ok])) @ np.asarray(R).T + t
+            X_world[k, ok] = ms.mesh.positions(face[ok], st[ok], ms.displacements_mm[k]) @ np.asarray(R).T + t
         return X0, X_world
 
     def strain_truth(self, X_specimen_mm, k: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Exact surface Green-Lagrange strain of state k relative to the reference state at material points.
-
-        With the face tangents ``T = [e_x, e_y]`` of the unloaded beam, the reference state's tangents are
-        ``a = F_0 T`` and state k's ``b = F_k T`` (``F = I + grad u``). In the orthonormal basis
-        ``Q = a L^-1`` of the reference surface (``a^T a = L^T L``, Cholesky: Q's first vector along the
-        deformed x fibre) the strain is ``E = (L^-T b^T b L^-1 - I) / 2``.
+        """Exact surface Green-Lagrange strain of state k relative to the reference state at front-face material
+        points (unloaded coordinates), from the FE solution's face
+        (:meth:`scenes.specimens.mesh_specimen.MeshSpecimen.surface_strain`).
 
         Returns
         -------
-        E : (N, 2, 2) strain in the basis Q
+        E : (N, 2, 2) strain in the orthonormal tangent basis Q of the reference state
         basis_world : (N, 3, 2) Q in the world (= left camera) frame
-        area_change : (N,) relative area change ``sqrt(det(b^T b) / det(a^T a)) - 1``
+        area_change : (N,) relative area change ``sqrt(det(I + 2 E)) - 1``
         """
-        X = np.asarray(X_specimen_mm, float)
+        X = np.asarray(X_specimen_mm, float).reshape(-1, 3)
         n = len(X)
         E = np.full((n, 2, 2), np.nan)
         Q_world = np.full((n, 3, 2), np.nan)
@@ -115,16 +153,13 @@ class BendingTruth:
         ok = np.all(np.isfinite(X), axis=1)
         if not ok.any():
             return E, Q_world, area
-        T = np.eye(3)[:, :2]
-        a = (np.eye(3) + self.field(0).gradient(X[ok])) @ T
-        b = (np.eye(3) + self.field(k).gradient(X[ok])) @ T
-        G = np.einsum("nki,nkj->nij", a, a)
-        C = np.einsum("nki,nkj->nij", b, b)
-        L = np.transpose(np.linalg.cholesky(G), (0, 2, 1))          # G = L^T L, L upper triangular
-        L_inv = np.linalg.inv(L)
-        E[ok] = 0.5 * (np.transpose(L_inv, (0, 2, 1)) @ C @ L_inv - np.eye(2))
-        Q_world[ok] = np.asarray(self.pose[0]) @ (a @ L_inv)
-        area[ok] = np.sqrt(np.linalg.det(C) / np.linalg.det(G)) - 1.0
+        ms = self.mesh_specimen
+        face, st = ms.paint_points(X[ok, :2])          # the front face's paint plane is its (x, y)
+        found = np.flatnonzero(ok)[face >= 0]
+        e, q = ms.surface_strain(face[face >= 0], st[face >= 0], k, reference=0)
+        E[found] = e
+        Q_world[found] = np.asarray(self.pose[0]) @ q
+        area[found] = np.sqrt(np.linalg.det(np.eye(2) + 2.0 * e)) - 1.0
         return E, Q_world, area
 
 
@@ -207,11 +242,10 @@ def render_bending(rig: StereoRig | str, out_dir, scale: float = 1.0, lens: str 
     digits = max(2, len(str(len(truth.loads_N) - 1)))
     planned = [f"{side}_{k:0{digits}d}.png" for k in range(len(truth.loads_N)) for side in SIDES]
     prepare_folder(out_dir, "bending", planned + ["truth.json"], overwrite=overwrite)
-    texture = truth.specimen.texture()
     mc_log: list = []
     render_log: list = []
     files = render_stereo_states(
-        truth, lambda k: truth.specimen.surfaces(*truth.pose, texture=texture, displacement_mm=truth.field(k)),
+        truth, truth.surfaces,
         len(truth.loads_N), out_dir, noise, spp=spp, seed=seed, desc=f"rendering bending ({lens})", progress=progress,
         mc_target_grey=mc_target_grey, mc_log=mc_log, renderer=renderer, render_log=render_log, optics=optics)
     truth.files = files
