@@ -4,13 +4,15 @@ The beam (:class:`scenes.specimens.beam.BendingSpecimen`, 120 x 30 x 10 mm) stan
 its face towards the cameras' bisector, exactly as in the rigid-motion test. It is loaded in three-point
 bending (:mod:`scenes.deformation.beam_bending`: a linear-elastic finite-element solution, aluminium, supports 100 mm apart, the
 loading nose at mid-span on the top face pushing down = +y of the specimen, i.e. down in the images) at the
-paper's loads: a 20 N reference, then 200 -> 2000 N in 200 N steps. Every state moves every surface vertex of
-the beam by the FE displacement at its load and is rendered in both cameras.
+paper's loads: a 20 N reference, then 200 -> 2000 N in 200 N steps; every state is rendered in both cameras.
 
-Truth of a DIC point (DESIGN §3): the chief ray of the left reference pixel hits the face *deformed by the 20 N
-preload* at the material point X0 (:func:`scenes.optics.projection.intersect_deformed_front_face`); its true position in
-state k is ``R (X0 + u_k(X0)) + t``, and its true surface strain relative to the reference state follows from
-the exact displacement gradients of both states (:meth:`BendingTruth.strain_truth`).
+The beam is rendered and given its truth through the generic specimen path, like any specimen from an FE file
+(:attr:`BendingTruth.mesh_specimen`: the outer surface of the FE solution's 27-node hexahedra as curved 9-node
+faces, the nodal displacements of every load, painted with the specimen's speckle texture): one FE path for every
+specimen. Truth of a DIC point (DESIGN §3): the chief ray of the left reference pixel meets the face *deformed by
+the 20 N preload* at the material point X0 (:meth:`scenes.specimens.mesh_specimen.MeshSpecimen.material_points_at`);
+its true position in state k is ``R (X0 + u_k(X0)) + t``, and its true surface strain relative to the reference
+state follows from the face's tangents in both states (:meth:`BendingTruth.strain_truth`).
 """
 from __future__ import annotations
 
