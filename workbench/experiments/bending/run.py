@@ -140,7 +140,7 @@ def reproduce_bending(out_dir: str | Path, *, scale: float = 1.0, rig_name: str 
     content = {"experiment": "bending", "rig": rig_name, "scale": float(scale), "lens": lens, "seed": seed,
                **render_content(spp, mc_target_grey), **speckle_render_content(renderer, lens, mc_target_grey),
                "read_noise_grey": float(noise_grey), "loads_N": [float(v) for v in loads],
-               "fe": "ThreePointBending defaults/1"}
+               "fe": "ThreePointBending defaults/2"}     # /2: rendered through the generic specimen path
     optics = None if f_number is None else paper_optics(get_rig(rig_name, scale), f_number)
     if optics is not None:                      # ideal-optics datasets keep the hashes they had
         content["optics"] = optics.to_dict()
