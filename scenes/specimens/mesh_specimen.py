@@ -197,8 +197,9 @@ class MeshSpecimen:
                            t_world_from_specimen_mm, pixels_xy, k: int = 0) -> tuple[np.ndarray, np.ndarray]:
         """The material points ``(face (M,), st (M, 2))`` one camera sees at pixel positions ``pixels_xy`` (M, 2)
         (sub-pixel allowed) in state k: the chief ray of each position, started on the flat piece its nearest pixel
-        centre sees and refined onto the curved deformed face (:func:`scenes.specimens.ray_surface
-        .refine_on_surface`). -1 / NaN where the ray misses the surface or leaves the image."""
+        centre sees and refined onto the curved deformed face
+        (:func:`~scenes.specimens.ray_surface.refine_on_surface`). -1 / NaN where the ray misses the surface or
+        leaves the image."""
         from scenes.optics.projection import pixel_rays
 
         p = np.asarray(pixels_xy, float).reshape(-1, 2)
