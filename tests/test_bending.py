@@ -41,8 +41,8 @@ def test_points_of_interest_lie_on_the_preloaded_face_and_project_back_to_their_
     """The material point seen by a left reference pixel, moved by the 20 N field, is imaged at that pixel
     (chief-ray projection, an independent inverse of the ray) to 1e-6 px; state k adds u_k: the truth (the FE
     solution's nodal values on the generic path's curved faces) equals the FE solution evaluated in its own
-    hexahedra (ThreePointBendingSolution, a second implementation that locates each point in its element by
-    Newton) to 1e-8 mm, 1e-7 px at this scale (seen: 2.4e-9 mm at 2000 N)."""
+    hexahedra (ThreePointBendingSolution, a second implementation) to 1e-12 mm (seen: 3.6e-15 mm; before the
+    sub-pixel rays were refined on the face that holds them, 2.4e-9 mm: this bound caught that)."""
     spec = truth.specs["left"]
     rng = np.random.default_rng(0)
     pixels = np.column_stack([rng.uniform(0.35, 0.65, 200) * spec.width, rng.uniform(0.4, 0.6, 200) * spec.height])
@@ -53,7 +53,7 @@ def test_points_of_interest_lie_on_the_preloaded_face_and_project_back_to_their_
     R, t = truth.pose
     for k in range(len(LOADS)):
         expected = (X0 + truth.field(k).displacement_mm(X0)) @ R.T + t
-        np.testing.assert_allclose(X_world[k], expected, rtol=0, atol=1e-8)
+        np.testing.assert_allclose(X_world[k], expected, rtol=0, atol=1e-12)
     # the preload moves the face by a fraction of a micrometre: the material points differ from the flat face's
     assert 1e-6 < np.max(np.abs(X_world[0] - (X0 @ R.T + t))) < 1e-3
 

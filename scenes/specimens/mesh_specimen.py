@@ -209,24 +209,37 @@ class MeshSpecimen:
                          self.vertices_world(k, R_world_from_specimen, t_world_from_specimen_mm),
                          self.tessellation.triangles)
         H, W = hits.triangle.shape
-        col, row = np.rint(p[:, 0]), np.rint(p[:, 1])
-        inside = np.all(np.isfinite(p), axis=1) & (col >= 0) & (col < W) & (row >= 0) & (row < H)
-        idx = np.flatnonzero(inside)
-        r, c = row[idx].astype(np.int64), col[idx].astype(np.int64)
-        tri = hits.triangle[r, c]
-        seen = tri >= 0
-        idx, r, c, tri = idx[seen], r[seen], c[seen], tri[seen]
-        if not len(idx):
-            return face, st
-        b = hits.bary[r, c]
-        corners = self.tessellation.triangle_st[tri]
-        st0 = corners[:, 0] + b[:, :1] * (corners[:, 1] - corners[:, 0]) + b[:, 1:] * (corners[:, 2] - corners[:, 0])
-        f = self.tessellation.triangle_face[tri]
-        o, d = pixel_rays(spec, R_cam_from_world, t_cam_from_world_mm, p[idx])
+        o_all, d_all = pixel_rays(spec, R_cam_from_world, t_cam_from_world_mm,
+                                  np.where(np.isfinite(p), p, 0.0))
         R, t = self.state_pose(k, R_world_from_specimen, t_world_from_specimen_mm)
-        st1, _ = refine_on_surface(self.mesh, f, st0, self.displacements_mm[k], o, d, R, t)
-        good = np.all(np.isfinite(st1), axis=1)
-        face[idx[good]], st[idx[good]] = f[good], st1[good]
+        # Seeds: the flat pieces seen at the nearest pixel centre, then at the other three around the position. A
+        # position between centres whose ray crosses into the next curved face is refined on the face that holds
+        # it (its (s, t) inside the face's domain), not on its neighbour's polynomial continued past the edge.
+        seeds = [(np.rint(p[:, 0]), np.rint(p[:, 1]))] + [(fx(p[:, 0]), fy(p[:, 1])) for fx in (np.floor, np.ceil)
+                                                          for fy in (np.floor, np.ceil)]
+        settled = np.zeros(len(p), bool)
+        for col, row in seeds:
+            todo = (~settled & np.all(np.isfinite(p), axis=1) & (col >= 0) & (col < W) & (row >= 0) & (row < H))
+            idx = np.flatnonzero(todo)
+            if not len(idx):
+                continue
+            r, c = row[idx].astype(np.int64), col[idx].astype(np.int64)
+            tri = hits.triangle[r, c]
+            seen = tri >= 0
+            idx, r, c, tri = idx[seen], r[seen], c[seen], tri[seen]
+            if not len(idx):
+                continue
+            b = hits.bary[r, c]
+            corners = self.tessellation.triangle_st[tri]
+            st0 = corners[:, 0] + b[:, :1] * (corners[:, 1] - corners[:, 0]) + b[:, 1:] * (corners[:, 2] - corners[:, 0])
+            f = self.tessellation.triangle_face[tri]
+            st1, _ = refine_on_surface(self.mesh, f, st0, self.displacements_mm[k], o_all[idx], d_all[idx], R, t)
+            good = np.all(np.isfinite(st1), axis=1)
+            inside = good & self.mesh.inside_face(f, st1)
+            first = face[idx] < 0                      # the nearest centre's answer stands unless a later one is inside
+            take = inside | (good & first)
+            face[idx[take]], st[idx[take]] = f[take], st1[take]
+            settled[idx[inside]] = True
         return face, st
 
     def follow(self, face, st, cameras: dict, R_world_from_specimen, t_world_from_specimen_mm, hits_of=None

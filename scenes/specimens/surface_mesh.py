@@ -273,6 +273,15 @@ class SurfaceMesh:
                 out.append((k, sel, self.faces[name][self.face_row[face[sel]]]))
         return out
 
+    def inside_face(self, face, st, tol: float = 1e-9) -> np.ndarray:
+        """(M,) bool: whether ``st`` lies in its face's reference domain (the triangle ``s, t >= 0, s + t <= 1`` or
+        the square ``[0, 1]^2``), within ``tol``; False for NaN."""
+        face = np.asarray(face, np.int64).reshape(-1)
+        s, t = np.asarray(st, float).reshape(-1, 2).T
+        square = np.array([FACE_ELEMENTS[name].kind == "square" for name in self.families])[self.face_family[face]]
+        low = (s >= -tol) & (t >= -tol)
+        return np.where(square, low & (s <= 1 + tol) & (t <= 1 + tol), low & (s + t <= 1 + tol))
+
     def evaluate(self, face, st, nodal_mm) -> np.ndarray:
         """``sum_a N_a(s, t) v_a`` of nodal vectors ``nodal_mm`` (P, 3) at points ``(face (M,), st (M, 2))``."""
         face = np.asarray(face, dtype=np.int64).reshape(-1)
