@@ -1,8 +1,7 @@
 """Specimens (truth side, floor 4 of ``scenes/``): bodies with paint, their states, and the exact truth of a pixel.
 
 * the paper's own: :mod:`~scenes.specimens.plate` (the rigid-motion plate), :mod:`~scenes.specimens.beam` (the
-  beam's size and speckle; as a rigid solid for the rigid-motion test; loaded, the bending test renders and
-  scores it through the generic path below, from its FE solution);
+  bending beam as a speckled solid);
 * any specimen from a mesh or FE result (the generic path): :mod:`~scenes.specimens.fe_files` (one reader per
   file type: STL/PLY/OBJ, meshio formats, ParaView ``.pvd``, Exodus II) -> :mod:`~scenes.specimens.surface_mesh`
   (curved FE faces, :mod:`~scenes.specimens.face_elements`) -> :mod:`~scenes.specimens.mesh_specimen` (states,
