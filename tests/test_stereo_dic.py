@@ -163,6 +163,33 @@ def test_a_match_reading_the_reference_cache_equals_one_that_prepares_every_subs
     assert np.max(np.abs(fresh.zncc[ok] - cached.zncc[ok])) <= 1e-12
 
 
+def test_a_cached_reference_status_says_why_unreached_nodes_are_unusable_as_a_fresh_match_does(measured):
+    """Nodes no propagation reaches take their reference-only status (here: untextured) from the cache's one
+    integral-image pass: the same statuses as a match without the cache, twice over (the second reads the kept
+    array), and each untextured node's subset really has a grey-level std under the threshold (direct numpy)."""
+    from measurement.dic import ReferenceCache, Status, correlate
+    from measurement.dic.correlate import prepare_image, subset_min_std
+
+    images, shape, state = measured
+    flat = images["left_ref"].copy()
+    x0, y0, x1, y1 = _roi()
+    cx, cy, size = (x0 + x1) // 2, (y0 + y1) // 2, SETTINGS.subset_size + 4 * SETTINGS.step
+    flat[cy - size // 2:cy + size // 2, cx - size // 2:cx + size // 2] = 128.0
+    prepared = prepare_image(flat, SETTINGS.interpolation, True, "flat patch")
+    min_std = subset_min_std(SETTINGS, prepared.values)
+    cache = ReferenceCache.for_grid(prepared.values, shape.grid, SETTINGS, min_std)
+    seeds = _seeds_of(state.left_match)
+    fresh = correlate(prepared, images["left_def"], SETTINGS, grid=shape.grid, seeds=seeds)
+    first = correlate(prepared, images["left_def"], SETTINGS, grid=shape.grid, seeds=seeds, reference_cache=cache)
+    second = correlate(prepared, images["left_def"], SETTINGS, grid=shape.grid, seeds=seeds, reference_cache=cache)
+    untextured = fresh.status == int(Status.LOW_TEXTURE)
+    assert untextured.sum() >= 4
+    assert np.array_equal(fresh.status, first.status) and np.array_equal(fresh.status, second.status)
+    half = SETTINGS.subset_size // 2
+    for x, y in zip(fresh.x[untextured], fresh.y[untextured]):
+        assert flat[y - half:y + half + 1, x - half:x + half + 1].std() < min_std
+
+
 def test_a_reference_cache_is_refused_for_another_reference_grid_or_setting(measured):
     from dataclasses import replace
 

@@ -552,7 +552,11 @@ def correlate(reference: np.ndarray, deformed: np.ndarray, settings: DICSettings
         unreached = np.argwhere(grid.active & ((status == NOT_REACHED) | (status == int(Status.NO_INITIAL_GUESS))))
         if unreached.size:
             r_u, c_u = unreached[:, 0], unreached[:, 1]
-            own = reference_subset_status(ref.values, grid.x[r_u, c_u], grid.y[r_u, c_u], half, min_std)
+            if reference_cache is not None:
+                own = reference_cache.subset_status(
+                    lambda xs, ys: reference_subset_status(ref.values, xs, ys, half, min_std))[r_u, c_u]
+            else:
+                own = reference_subset_status(ref.values, grid.x[r_u, c_u], grid.y[r_u, c_u], half, min_std)
             status[r_u, c_u] = np.where(own == CONVERGED, status[r_u, c_u], own)
 
     r, c = active_rc[:, 0], active_rc[:, 1]

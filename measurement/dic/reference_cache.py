@@ -58,6 +58,7 @@ class ReferenceCache:
     min_std: float
     fingerprint: int
     _values: np.ndarray = field(repr=False)
+    _subset_status: np.ndarray | None = field(default=None, repr=False)
 
     @classmethod
     def for_grid(cls, reference_values: np.ndarray, grid, settings, min_std: float) -> "ReferenceCache":
@@ -76,6 +77,16 @@ class ReferenceCache:
     def filled_fraction(self) -> float:
         """Share of the grid's nodes whose record is filled."""
         return float(np.mean(self.info[..., INFO_FILLED] != 0.0)) if self.info.size else 0.0
+
+    def subset_status(self, compute) -> np.ndarray:
+        """The reference-only status of every grid node (usable, out of the image, untextured, invalid), shape
+        (R, C): ``compute(xs, ys)`` (the match's ``reference_subset_status`` on this reference) is called once, on
+        every node, and its answer kept: it depends on the reference, grid and texture threshold only, which
+        :meth:`check` guarantees (an integral-image pass over the reference that every match would repeat)."""
+        if self._subset_status is None:
+            status = compute(self.grid_x.reshape(-1), self.grid_y.reshape(-1))
+            self._subset_status = np.asarray(status).reshape(self.grid_x.shape)
+        return self._subset_status
 
     def check(self, reference_values: np.ndarray, grid, settings, min_std: float) -> None:
         """Refuse a match this cache was not made for.
