@@ -21,6 +21,15 @@ order) and 880-1 000 / 785-880 (second order) POI/s per core on that day's machi
 and are the ones printed.
 
     .venv/bin/python benchmarks/dic_speed.py [--scale 1.0] [--threads 1,2] [--configs 1:33,2:65] [--repeats 3]
+        [--peer-command "PROGRAM {ref} {tar} {order} {radius} {step} {border} {threads}"]
+
+``--peer-command`` runs a peer DIC program on the same PNG pair, in the same process tree, right after each of
+this engine's measurements (same configuration, same thread count, as many runs), so both see the machine in the
+same state. The placeholders are filled in (``radius`` = (subset - 1) / 2, step 8 px, border 50 px); the program
+must print one line ``pois N fftcc_s S prepare_s S icgn_s S mean_iterations K`` (its initial-guess stage, its
+image preparation and its IC-GN, seconds). Printed: its POI/s per core for IC-GN alone and for the whole pipeline
+(the three stages), and this engine's ratio to it. No peer is part of this project: reports/dic_speed/README.md
+says how OpenCorr was built and driven for the figures there.
 
 Shared virtual machines change speed from one second to the next (10-50 % seen here), so every measurement is
 repeated and the best run and the median are printed; the best is the machine's speed when nothing else ran.
@@ -135,12 +144,32 @@ def make_pair(scale: float, seed: int = 0):
     return reference.astype(np.uint8), deformed.astype(np.uint8), field
 
 
+PEER_KEYS = ("pois", "fftcc_s", "prepare_s", "icgn_s", "mean_iterations")
+
+
+def run_peer(template: str, images: Path, order: int, subset: int, threads: int) -> dict:
+    """Run the ``--peer-command`` once on the benchmark's pair; its printed figures (:data:`PEER_KEYS`)."""
+    command = template.format(ref=images / "reference.png", tar=images / "deformed.png", order=order,
+                              radius=(subset - 1) // 2, step=8, border=50, threads=threads)
+    done = subprocess.run(command, shell=True, capture_output=True, text=True)
+    if done.returncode != 0:
+        raise SystemExit(f"--peer-command failed (exit {done.returncode}): {command}\n{done.stderr.strip()}")
+    for line in done.stdout.splitlines():
+        words = line.split()
+        figures = dict(zip(words[::2], words[1::2]))
+        if all(k in figures for k in PEER_KEYS):
+            return {k: float(figures[k]) for k in PEER_KEYS}
+    raise SystemExit(f"--peer-command printed no line with {' '.join(PEER_KEYS)}: {command}\n{done.stdout[-500:]}")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--scale", type=float, default=1.0, help="image scale (1 = 2456 x 2058)")
     ap.add_argument("--threads", default="1,2")
     ap.add_argument("--configs", default="1:33,2:65", help="order:subset pairs")
     ap.add_argument("--repeats", type=int, default=3, help="runs per measurement (best and median printed)")
+    ap.add_argument("--peer-command", default=None,
+                    help="a peer DIC program run on the same pair after each measurement (see the module notes)")
     ap.add_argument("--images", type=Path, default=None, help=argparse.SUPPRESS)  # worker mode
     ap.add_argument("--compile-only", action="store_true", help=argparse.SUPPRESS)  # worker: fill the cache
     args = ap.parse_args()
@@ -160,6 +189,8 @@ def main() -> None:
             env = {**os.environ, "NUMBA_CACHE_DIR": f"{tmp}/numba_cache"}
             worker = [sys.executable, __file__, "--scale", str(args.scale), "--threads", args.threads,
                       "--configs", args.configs, "--repeats", str(args.repeats), "--images", tmp]
+            if args.peer_command:
+                worker += ["--peer-command", args.peer_command]
             subprocess.run(worker + ["--compile-only"], check=True, env=env)
             subprocess.run(worker, check=True, env=env)
         return
@@ -213,6 +244,17 @@ def main() -> None:
                   f"{n / np.median(pipeline_s) / threads:>8,.0f} POI/s per core ({min(pipeline_s):.2f} s; last run's "
                   f"stages {', '.join(f'{k} {v:.2f} s' for k, v in full.timings_s.items())}; converged "
                   f"{ok.mean():.4f}, mean iterations {full.iterations[ok].mean():.2f})")
+            if args.peer_command:
+                peer = [run_peer(args.peer_command, args.images, order, subset, threads)
+                        for _ in range(max(1, args.repeats))]
+                peer_icgn = min(p["icgn_s"] for p in peer)
+                peer_pipe = min(p["fftcc_s"] + p["prepare_s"] + p["icgn_s"] for p in peer)
+                m = peer[0]["pois"]
+                print(f"    peer, same pair and threads, {len(peer)} runs ({m} POI, mean iterations "
+                      f"{peer[0]['mean_iterations']:.2f}): IC-GN alone {m / peer_icgn / threads:>8,.0f}, whole "
+                      f"pipeline {m / peer_pipe / threads:>8,.0f} POI/s per core (best); this engine's ratio: "
+                      f"IC-GN {(n / min(icgn_s)) / (m / peer_icgn):.1f}x, pipeline "
+                      f"{(n / min(pipeline_s)) / (m / peer_pipe):.1f}x")
         ref_icgn, ref_pipe = OPENCORR.get((order, subset), (None, None))
         if ref_icgn:
             print(f"    OpenCorr reference (bicubic): {ref_icgn:,} POI/s per core IC-GN, {ref_pipe:,} pipeline")

@@ -21,12 +21,13 @@ from labio.atomic import atomic_writer
 
 from . import bspline
 from .grid import PoiGrid, check_subset_size, poi_grid
-from .guide import band_regions, propagate
+from .guide import band_regions, propagate_grid
 from .icgn import INFO_SIZE, correlate_batch
 from .initial import DEFAULT_SEED_ANGLES_DEG, Seed, zncc_search
 from .reference_cache import ReferenceCache
 from .shape_functions import N_PARAMETERS, PARAMETER_NAMES, SECOND_ORDER
 from .status import CONVERGED, NOT_REACHED, Status
+from .traversal import TRAVERSALS, choose_traversal, propagate_columns
 
 
 @dataclass(frozen=True)
@@ -124,6 +125,8 @@ class DICResult:
     uncertainty : MatchUncertainty or None
         Per-point uncertainty, when computed (:func:`measurement.uncertainty.match.dic_uncertainty`); its columns
         (``sigma_u_px``, ``sigma_v_px``, ``residual_ratio``, ``sigma_flag``) are then written by :meth:`to_csv`.
+    traversal : str
+        'rows' or 'columns': the order IC-GN sampled the subsets in (:mod:`.traversal`).
     """
 
     x: np.ndarray
@@ -140,6 +143,7 @@ class DICResult:
     settings: DICSettings
     timings_s: dict = field(default_factory=dict)
     uncertainty: object = field(default=None, repr=False)
+    traversal: str = "rows"
 
     @property
     def converged(self) -> np.ndarray:
@@ -384,7 +388,8 @@ def correlate(reference: np.ndarray, deformed: np.ndarray, settings: DICSettings
               seeds: list[Seed] | None = None,
               initial_parameters: np.ndarray | None = None,
               grid: PoiGrid | None = None,
-              reference_cache: ReferenceCache | None = None) -> DICResult:
+              reference_cache: ReferenceCache | None = None,
+              traversal: str = "auto") -> DICResult:
     """Subset DIC between two grey images.
 
     Parameters
@@ -417,12 +422,19 @@ def correlate(reference: np.ndarray, deformed: np.ndarray, settings: DICSettings
         (:class:`.reference_cache.ReferenceCache`, made with ``ReferenceCache.for_grid`` for this reference, grid
         and settings): filled where a node is first matched, read afterwards. Same results, less work per match.
         A cache made for another reference, grid or settings raises ValueError naming the difference.
+    traversal : {'auto', 'rows', 'columns'}
+        The order IC-GN samples a warped subset in (:mod:`.traversal`): 'columns' correlates the transposed images
+        (same sums, same results to IC-GN's tolerance) and pays where the warp compresses or stretches rows (a
+        stereo view's foreshortening) more than columns; 'auto' picks it from the seeds' shape parameters. The
+        result's ``traversal`` says which ran. Not used with ``initial_parameters``.
 
     Returns
     -------
     DICResult
     """
     settings = settings or DICSettings()
+    if traversal not in TRAVERSALS:
+        raise ValueError(f"traversal must be one of {', '.join(TRAVERSALS)}, got {traversal!r}")
     timings = {}
     start = time.perf_counter()
     if isinstance(reference, PreparedImage):
@@ -526,21 +538,15 @@ def correlate(reference: np.ndarray, deformed: np.ndarray, settings: DICSettings
             seed_p = np.array([s.parameters for _, _, s in found], dtype=np.float64)
             if settings.order == 1:
                 seed_p[:, SECOND_ORDER] = 0.0
-            # Bands can hold very different amounts of work (part of the ROI out of view): hand them out one
-            # at a time instead of in fixed chunks per thread.
-            with numba.parallel_chunksize(1):
-                propagate(ref.values, ref.spline.grad_x, ref.spline.grad_y, dfm.spline.coefficients, degree, bad,
-                          check_bad, grid.x.astype(np.int64), grid.y.astype(np.int64), grid.active, region,
-                          n_regions, seed_rc, seed_p, half, settings.order, min_std, int(settings.max_iterations),
-                          float(settings.tolerance_px), float(settings.min_zncc), params, status, zncc, iterations,
-                          sssig, False, *cache_arrays)
-            unreached = grid.active & (status == NOT_REACHED)
-            if n_regions > 1 and unreached.any() and (status == CONVERGED).any():
-                propagate(ref.values, ref.spline.grad_x, ref.spline.grad_y, dfm.spline.coefficients, degree,
-                          bad, check_bad, grid.x.astype(np.int64), grid.y.astype(np.int64), grid.active,
-                          np.zeros(grid.shape, dtype=np.int64), 1, seed_rc[:0], seed_p[:0], half, settings.order,
-                          min_std, int(settings.max_iterations), float(settings.tolerance_px),
-                          float(settings.min_zncc), params, status, zncc, iterations, sssig, True, *cache_arrays)
+            traversal = choose_traversal(traversal, seed_p, half)
+            outputs = (params, status, zncc, iterations, sssig)
+            if traversal == "columns":
+                propagate_columns(ref, dfm.spline.coefficients, degree, bad, check_bad, grid, region, n_regions,
+                                  seed_rc, seed_p, settings, min_std, outputs, reference_cache)
+            else:
+                propagate_grid(ref.values, ref.spline.grad_x, ref.spline.grad_y, dfm.spline.coefficients, degree,
+                               bad, check_bad, grid.x, grid.y, grid.active, region, n_regions, seed_rc, seed_p, half,
+                               settings, min_std, *outputs, cache_arrays)
         timings["propagation"] = time.perf_counter() - t
         if found and not (status == CONVERGED).any():
             # Every seed failed in IC-GN: their guesses were not acceptable matches.
@@ -569,7 +575,8 @@ def correlate(reference: np.ndarray, deformed: np.ndarray, settings: DICSettings
         x=grid.x[r, c].astype(np.int64), y=grid.y[r, c].astype(np.int64),
         u=out_params[:, 0].copy(), v=out_params[:, 6].copy(), parameters=out_params, zncc=out_zncc,
         iterations=iterations[r, c], status=out_status.astype(np.int8), sssig=sssig[r, c],
-        grid_index=active_rc.astype(np.int64), grid_shape=grid.shape, settings=settings, timings_s=timings)
+        grid_index=active_rc.astype(np.int64), grid_shape=grid.shape, settings=settings, timings_s=timings,
+        traversal=traversal if traversal != "auto" else "rows")
 
 
 def _node_of(grid: PoiGrid, seed: Seed) -> tuple[int, int]:

@@ -153,6 +153,28 @@ def propagate(image, grad_x, grad_y, coef, degree, bad, check_bad, grid_x, grid_
                           cache_hinv, cache_a, cache_s)
 
 
+def propagate_grid(image, grad_x, grad_y, coef, degree, bad, check_bad, grid_x, grid_y, active, region, n_regions,
+                   seed_rc, seed_p, half, settings, min_std, params, status, zncc, iterations, sssig, cache_arrays):
+    """:func:`propagate` over every band from the seeds, then one single-region pass that reaches, from their
+    converged neighbours, the points a band could not reach from its own seeds. Arguments as :func:`propagate`
+    (``settings`` a :class:`.correlate.DICSettings`; ``cache_arrays`` = (use_cache, info, hinv, a, s))."""
+    # Bands can hold very different amounts of work (part of the ROI out of view): hand them out one at a time
+    # instead of in fixed chunks per thread.
+    grid_x = np.asarray(grid_x, dtype=np.int64)
+    grid_y = np.asarray(grid_y, dtype=np.int64)
+    with numba.parallel_chunksize(1):
+        propagate(image, grad_x, grad_y, coef, degree, bad, check_bad, grid_x, grid_y, active, region, n_regions,
+                  seed_rc, seed_p, half, settings.order, min_std, int(settings.max_iterations),
+                  float(settings.tolerance_px), float(settings.min_zncc), params, status, zncc, iterations, sssig,
+                  False, *cache_arrays)
+    unreached = active & (status == NOT_REACHED)
+    if n_regions > 1 and unreached.any() and (status == CONVERGED).any():
+        propagate(image, grad_x, grad_y, coef, degree, bad, check_bad, grid_x, grid_y, active,
+                  np.zeros(active.shape, dtype=np.int64), 1, seed_rc[:0], seed_p[:0], half, settings.order, min_std,
+                  int(settings.max_iterations), float(settings.tolerance_px), float(settings.min_zncc), params,
+                  status, zncc, iterations, sssig, True, *cache_arrays)
+
+
 def band_regions(shape: tuple[int, int], n_regions: int) -> np.ndarray:
     """Cut a grid of ``shape`` (n_rows, n_cols) into ``n_regions`` vertical bands; returns region ids."""
     n_rows, n_cols = shape

@@ -372,21 +372,33 @@ def _vector_stop(start, end, overrun_ok):
 
 
 @numba.njit(inline="always")
-def _is_single_run(ix_minus_c, iy, n):
-    """True if the whole row shares one coefficient window offset (a vectorised test; the scan is scalar)."""
+def _row_breaks(ix_minus_c, iy, n, brk):
+    """Flag in ``brk`` (uint8, zero past ``n``) each pixel whose coefficient window does not follow its left
+    neighbour's by one column (a new run starts there); returns how many (a vectorised pass)."""
     breaks = 0
     for c in range(1, n):
-        breaks += (ix_minus_c[c] != ix_minus_c[c - 1]) | (iy[c] != iy[c - 1])
-    return breaks == 0
+        flag = np.uint8((ix_minus_c[c] != ix_minus_c[c - 1]) | (iy[c] != iy[c - 1]))
+        brk[c] = flag
+        breaks += flag
+    return breaks
 
 
 @numba.njit(inline="always")
-def _run_end(ix_minus_c, iy, start, n):
-    """End of the run of pixels from ``start`` that share the same coefficient rows and column offset."""
-    end = start + 1
-    while end < n and ix_minus_c[end] == ix_minus_c[start] and iy[end] == iy[start]:
-        end += 1
-    return end
+def _run_end(brk, brk_words, start, n):
+    """End of the run of pixels from ``start`` (the next flagged pixel, or ``n``): eight flags are read at a time
+    through ``brk_words`` (``brk`` viewed as uint64), so a long run costs a few loads, not a compare per pixel."""
+    c = start + 1
+    while c < n and (c & 7) != 0:
+        if brk[c]:
+            return c
+        c += 1
+    while c < n:
+        if brk_words[c >> 3] != 0:
+            for j in range(8):
+                if brk[c + j]:
+                    return min(c + j, n)
+        c += 8
+    return n
 
 
 # Sampling a warped subset row: the row is split into runs of pixels whose 6 x 6 (or 4 x 4) coefficient
@@ -400,18 +412,20 @@ def _run_end(ix_minus_c, iy, start, n):
 # Two sampling kernels, one per spline degree, on purpose: a single kernel with the degree as a
 # (loop-invariant) branch measured 5-10 % slower in benchmarks/dic_speed.py.
 @numba.njit(cache=True, fastmath=True)
-def _sample_row_quintic(cf, rows, cols, half, tx, ty, ix_minus_c, iy, g):
+def _sample_row_quintic(cf, rows, cols, half, tx, ty, ix_minus_c, iy, g, brk, brk_words):
     """Biquintic samples ``g`` of one warped row (positions from :func:`_warp_row`, support inside).
 
-    ``tx``, ``ty`` and ``g`` hold 2M + 1 + LANES entries (the padding takes the overrun of the last run).
+    ``tx``, ``ty`` and ``g`` hold 2M + 1 + LANES entries (the padding takes the overrun of the last run);
+    ``brk`` (uint8, zero-filled, a multiple of 8 entries >= 2M + 9) is scratch for the run breaks and ``brk_words``
+    its uint64 view.
     """
     n = 2 * half + 1
     stride = np.uint64(cols)
     one, two, three, four, five = np.uint64(1), np.uint64(2), np.uint64(3), np.uint64(4), np.uint64(5)
-    single_run = _is_single_run(ix_minus_c, iy, n)
+    single_run = _row_breaks(ix_minus_c, iy, n, brk) == 0
     start = 0
     while start < n:
-        end = n if single_run else _run_end(ix_minus_c, iy, start, n)
+        end = n if single_run else _run_end(brk, brk_words, start, n)
         # Reading up to LANES - 1 columns past the run stays inside the array unless its last coefficient row
         # is the array's last row.
         stop = _vector_stop(start, end, iy[start] + 3 < rows - 1)
@@ -442,15 +456,15 @@ def _sample_row_quintic(cf, rows, cols, half, tx, ty, ix_minus_c, iy, g):
 
 
 @numba.njit(cache=True, fastmath=True)
-def _sample_row_cubic(cf, rows, cols, half, tx, ty, ix_minus_c, iy, g):
+def _sample_row_cubic(cf, rows, cols, half, tx, ty, ix_minus_c, iy, g, brk, brk_words):
     """As :func:`_sample_row_quintic`, bicubic."""
     n = 2 * half + 1
     stride = np.uint64(cols)
     one, two, three = np.uint64(1), np.uint64(2), np.uint64(3)
-    single_run = _is_single_run(ix_minus_c, iy, n)
+    single_run = _row_breaks(ix_minus_c, iy, n, brk) == 0
     start = 0
     while start < n:
-        end = n if single_run else _run_end(ix_minus_c, iy, start, n)
+        end = n if single_run else _run_end(brk, brk_words, start, n)
         stop = _vector_stop(start, end, iy[start] + 2 < rows - 1)
         base = np.uint64((iy[start] - 1) * cols + ix_minus_c[start] - 1)
         for cu in range(np.uint64(start), np.uint64(stop)):
@@ -560,6 +574,8 @@ def iterate(coef, degree, bad, check_bad, x0, y0, half, order, f, fx, fy, delta_
     ix_minus_c = np.empty(n, dtype=np.int32)
     iy = np.empty(n, dtype=np.int32)
     g_row = np.empty(n + LANES, dtype=np.float32)
+    brk = np.zeros(((n + LANES + 7) // 8) * 8, dtype=np.uint8)     # entries past n stay 0
+    brk_words = brk.view(np.uint64)
     dxs = np.arange(-half, half + 1).astype(np.float64)
     zncc = np.nan
     for iteration in range(1, max_iterations + 1):
@@ -586,9 +602,9 @@ def iterate(coef, degree, bad, check_bad, x0, y0, half, order, f, fx, fy, delta_
                 return INVALID_IMAGE, zncc, iteration
             _warp_row(ax, bx, cx, ay, by, cy, dxs, tx, ty, ix_minus_c, iy)
             if degree == 5:
-                _sample_row_quintic(cf, rows, cols, half, tx, ty, ix_minus_c, iy, g_row)
+                _sample_row_quintic(cf, rows, cols, half, tx, ty, ix_minus_c, iy, g_row, brk, brk_words)
             else:
-                _sample_row_cubic(cf, rows, cols, half, tx, ty, ix_minus_c, iy, g_row)
+                _sample_row_cubic(cf, rows, cols, half, tx, ty, ix_minus_c, iy, g_row, brk, brk_words)
             sg, sgg, sfg, rx0, rx1, rx2, ry0, ry1, ry2 = _row_sums(g_row, f, fx, fy, r * n, dxs)
             sum_g += sg
             sum_gg += sgg

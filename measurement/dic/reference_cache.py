@@ -11,7 +11,8 @@ numbers as without the cache (the same functions on the same pixels).
 A record belongs to one reference image, one grid and one set of settings: :meth:`ReferenceCache.check` refuses
 any other (a cached Hessian of another image would converge IC-GN to wrong displacements without a sign).
 Memory: ``(6 + np^2 + 2 np)`` float64 per grid node (np = 6 or 12 parameters): 1.4 kB at second order,
-~110 MB for the paper's 80 000 nodes.
+~110 MB for the paper's 80 000 nodes; twice that, and the transposed reference, once a column-major match
+(:mod:`.traversal`) has used it.
 """
 from __future__ import annotations
 
@@ -59,6 +60,7 @@ class ReferenceCache:
     fingerprint: int
     _values: np.ndarray = field(repr=False)
     _subset_status: np.ndarray | None = field(default=None, repr=False)
+    _transposed: tuple | None = field(default=None, repr=False)
 
     @classmethod
     def for_grid(cls, reference_values: np.ndarray, grid, settings, min_std: float) -> "ReferenceCache":
@@ -87,6 +89,17 @@ class ReferenceCache:
             status = compute(self.grid_x.reshape(-1), self.grid_y.reshape(-1))
             self._subset_status = np.asarray(status).reshape(self.grid_x.shape)
         return self._subset_status
+
+    def transposed(self, make, grid_t, settings, min_std: float) -> tuple:
+        """(values, grad_x, grad_y, cache) of this reference seen transposed, for column-major matches
+        (:mod:`.traversal`): ``make()`` gives the three arrays, called once; the cache holds the records of the
+        transposed grid ``grid_t`` (another parameter order, another summation order: not this cache's)."""
+        if self._transposed is None:
+            values_t, grad_x_t, grad_y_t = make()
+            self._transposed = (values_t, grad_x_t, grad_y_t,
+                                ReferenceCache.for_grid(values_t, grid_t, settings, min_std))
+        self._transposed[3].check(self._transposed[0], grid_t, settings, min_std)
+        return self._transposed
 
     def check(self, reference_values: np.ndarray, grid, settings, min_std: float) -> None:
         """Refuse a match this cache was not made for.
