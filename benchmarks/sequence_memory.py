@@ -5,7 +5,8 @@ A speckled plate is rendered through the paper rig (``--scale 1``: 2456 x 2058 p
 translated pair with a fresh noise draw of 1 grey added to it, so every state is a new measurement of the same
 motion. The instrument measures them one after the other as ``workbench stereo`` does (paper settings,
 with the per-point uncertainty, each state warm-started from the one before, nothing kept but the current state and
-its per-point CSV written to a scratch folder). Printed: the process's resident memory after the reference shape and
+its per-point CSV written to a scratch folder), with malloc set as the ``workbench`` command sets it
+(:mod:`labio.memory`). Printed: the process's resident memory after the reference shape and
 after states 1, 10, 100 ..., its high-water mark, and the growth per state over the second half of the run (0 when
 the sequence streams).
 
@@ -42,7 +43,10 @@ def main(argv=None) -> int:
     if args.states < 2:
         raise SystemExit("--states must be at least 2")
 
+    from labio.memory import keep_freed_memory
     from uncertainty_cost import scene
+
+    print(f"glibc keeps freed blocks (as the workbench CLI does): {keep_freed_memory()}")
 
     from measurement.stereo_dic import STEREO_DIC_SETTINGS, measure_state, reference_shape
     from measurement.stereo_io import write_state_csv

@@ -36,6 +36,8 @@ import contextlib
 import sys
 import warnings
 
+from labio.memory import keep_freed_memory
+
 from workbench.commands import (budget, calibrate, calibration, catalog, design, dic, export, gate, parameters,
                                 render, reproduce, score, stereo, sweep, twin)
 
@@ -87,6 +89,7 @@ def _join_negative_lists(argv: list[str]) -> list[str]:
 
 
 def main(argv: list[str] | None = None) -> int:
+    keep_freed_memory()      # image-sized blocks reused, not faulted in again page by page (labio.memory)
     argv = _join_negative_lists(list(sys.argv[1:] if argv is None else argv))
     try:
         args = parser().parse_args(argv)
