@@ -404,6 +404,24 @@ def test_calibrate_command_on_image_files(rendered_views, tmp_path):
     assert len(d["images"]["left"]) == 8
 
 
+def test_boards_detected_on_threads_come_back_in_file_order_as_detected_one_by_one(rendered_views):
+    """detect_pairs / detect_views detect on all cores; each view's corners are the detector's on that file alone
+    (read and detected here one by one), in the order the files were given (a reversed list stays reversed)."""
+    from measurement.calibration.detection import detect_checkerboard
+    from measurement.calibration.images import detect_pairs, detect_views
+    from measurement.image_io import read_grey
+
+    left = sorted(str(p) for p in rendered_views.glob("left_*.png"))[::-1]
+    right = sorted(str(p) for p in rendered_views.glob("right_*.png"))[::-1]
+    pairs = detect_pairs(left, right, progress=False)
+    views = detect_views(right, progress=False)
+    assert pairs.left_files == left and views.files == right
+    for k, (fl, fr) in enumerate(zip(left, right)):
+        assert np.array_equal(pairs.points_left[k], detect_checkerboard(read_grey(fl), (11, 8)))
+        assert np.array_equal(pairs.points_right[k], detect_checkerboard(read_grey(fr), (11, 8)))
+        assert np.array_equal(views.points[k], pairs.points_right[k])
+
+
 def test_view_without_board_is_dropped_with_warning(rendered_views, tmp_path):
     views = tmp_path / "v"
     shutil.copytree(rendered_views, views)

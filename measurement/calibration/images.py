@@ -1,7 +1,10 @@
 """Calibrate a stereo pair from image files (real or rendered): read, detect, pair, calibrate."""
 from __future__ import annotations
 
+import itertools
+import os
 import warnings
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -38,6 +41,22 @@ def _target_name(target, pattern_size) -> str:
     if isinstance(target, DotGridSpec):
         return f"{target.pattern_size[0]} x {target.pattern_size[1]} dot grid"
     return f"{pattern_size[0]} x {pattern_size[1]}-corner board"
+
+
+def _detect_all(paths: list[str], size: list, pattern_size, refine: bool, target, progress: bool, per_item: int = 1):
+    """:func:`_read_and_detect` of every path, in order (an iterator), on as many threads as the machine has cores:
+    OpenCV's detector releases the GIL, and one board is detected on one core. The first image is read alone, so
+    every other one is checked against its size. The progress bar counts ``per_item`` paths as one item."""
+    bar = tqdm(total=len(paths) // per_item, desc="detecting boards", disable=not progress)
+    first = _read_and_detect(paths[0], size, pattern_size, refine, target)
+    workers = max(1, min(os.cpu_count() or 1, len(paths) - 1))
+    with ThreadPoolExecutor(workers) as pool:
+        rest = pool.map(lambda path: _read_and_detect(path, size, pattern_size, refine, target), paths[1:])
+        for k, corners in enumerate(itertools.chain([first], rest)):
+            if (k + 1) % per_item == 0:
+                bar.update(1)
+            yield corners
+    bar.close()
 
 
 def _read_and_detect(path: str, size: list, pattern_size, refine: bool, target=None) -> np.ndarray | None:
@@ -88,8 +107,10 @@ def detect_pairs(left_files, right_files, pattern_size=(11, 8), progress: bool =
         raise CalibrationError(f"{len(left_files)} left images but {len(right_files)} right images: they must pair up")
     size = []
     pts_l, pts_r, used_l, used_r, dropped = [], [], [], [], []
-    for fl, fr in tqdm(list(zip(left_files, right_files)), desc="detecting boards", disable=not progress):
-        corners = [_read_and_detect(f, size, pattern_size, refine, target) for f in (fl, fr)]
+    found = _detect_all([f for pair in zip(left_files, right_files) for f in pair], size, pattern_size, refine,
+                        target, progress, per_item=2)
+    for fl, fr in zip(left_files, right_files):
+        corners = [next(found), next(found)]
         missing = [f for f, c in zip((fl, fr), corners) if c is None]
         if missing:
             warnings.warn(f"board not found in {', '.join(missing)}: dropping the pair ({Path(fl).name}, "
@@ -139,8 +160,9 @@ def detect_views(files, pattern_size=(11, 8), progress: bool = True, refine: boo
         raise CalibrationError("no images given (check the --camera pattern)")
     size = []
     points, used, dropped = [], [], []
-    for f in tqdm(files, desc="detecting boards", disable=not progress):
-        corners = _read_and_detect(f, size, pattern_size, refine, target)
+    found = _detect_all(files, size, pattern_size, refine, target, progress)
+    for f in files:
+        corners = next(found)
         if corners is None:
             warnings.warn(f"board not found in {f}: dropping it", stacklevel=2)
             dropped.append(f)
