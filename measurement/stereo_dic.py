@@ -295,6 +295,11 @@ def correlate_with_features(reference: np.ndarray | PreparedImage, target: np.nd
 WARM_START_MIN_SHARE = 0.98
 
 
+def _position_keys(x, y) -> np.ndarray:
+    """One int64 per pixel position (x, y >= 0, below 2^31)."""
+    return np.asarray(x, dtype=np.int64) * (1 << 32) + np.asarray(y, dtype=np.int64)
+
+
 def sequence_seeds(reference: np.ndarray, target: np.ndarray, grid: PoiGrid, previous: DICResult,
                    settings: DICSettings, per_region: int = 2, tries_per_region: int = 6,
                    min_zncc: float = 0.5) -> list[Seed]:
@@ -309,24 +314,30 @@ def sequence_seeds(reference: np.ndarray, target: np.ndarray, grid: PoiGrid, pre
     ok = previous.status == Status.CONVERGED
     if not ok.any():
         return []
-    # previous points by position: the grids may differ (an automatic ROI keeps a subset of the nodes)
-    lookup = {(int(x), int(y)): k for k, (x, y) in enumerate(zip(previous.x[ok], previous.y[ok]))}
+    # previous points by position (one int64 key per node, sorted): the grids may differ (an automatic ROI keeps a
+    # subset of the nodes)
+    key_prev = _position_keys(previous.x[ok], previous.y[ok])
+    sorter = np.argsort(key_prev, kind="stable")
+    sorted_keys = key_prev[sorter]
     params = previous.parameters[ok]
     region = band_regions(grid.shape, settings.regions)
     half = grid.half
     seeds = []
     for region_id in range(int(region.max()) + 1):
         rows, cols = np.nonzero(grid.active & (region == region_id))
-        candidates = [(int(grid.x[r, c]), int(grid.y[r, c])) for r, c in zip(rows, cols)]
-        known = [(x, y) for x, y in candidates if (x, y) in lookup]
-        if not known:
+        xs, ys = grid.x[rows, cols].astype(np.int64), grid.y[rows, cols].astype(np.int64)
+        keys = _position_keys(xs, ys)
+        at = np.minimum(np.searchsorted(sorted_keys, keys), sorted_keys.size - 1)
+        known = sorted_keys[at] == keys
+        if not known.any():
             continue
-        xy = np.array(known, dtype=np.float64)
+        xs, ys, index = xs[known], ys[known], sorter[at[known]]
+        xy = np.column_stack([xs, ys]).astype(np.float64)
         order = np.argsort(np.sum((xy - xy.mean(axis=0)) ** 2, axis=1), kind="stable")
         found = 0
         for k in order[:: max(1, order.size // 64)][:tries_per_region]:
-            x, y = known[k]
-            p = params[lookup[(x, y)]].copy()
+            x, y = int(xs[k]), int(ys[k])
+            p = params[index[k]].copy()
             seed = zncc_search(reference, target, x, y, half, int(settings.search_radius_px), (p[0], p[6]))
             if seed is None or not seed.zncc >= min_zncc:
                 continue

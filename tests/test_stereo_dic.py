@@ -256,6 +256,60 @@ def test_a_state_warm_started_from_the_previous_one_measures_what_feature_seeds_
     assert np.nanmax(np.abs(jumped.U_mm - state.U_mm)) < 1e-5
 
 
+def _sequence_seeds_by_dict(reference, target, grid, previous, settings, per_region=2, tries_per_region=6,
+                            min_zncc=0.5):
+    """The warm-start seeds found through a dict of positions (the implementation the array lookup replaced)."""
+    from measurement.dic import Seed, Status
+    from measurement.dic.guide import band_regions
+    from measurement.dic.initial import zncc_search
+
+    ok = previous.status == Status.CONVERGED
+    lookup = {(int(x), int(y)): k for k, (x, y) in enumerate(zip(previous.x[ok], previous.y[ok]))}
+    params = previous.parameters[ok]
+    region = band_regions(grid.shape, settings.regions)
+    seeds = []
+    for region_id in range(int(region.max()) + 1):
+        rows, cols = np.nonzero(grid.active & (region == region_id))
+        known = [(int(grid.x[r, c]), int(grid.y[r, c])) for r, c in zip(rows, cols)]
+        known = [xy for xy in known if xy in lookup]
+        if not known:
+            continue
+        xy = np.array(known, dtype=np.float64)
+        order = np.argsort(np.sum((xy - xy.mean(axis=0)) ** 2, axis=1), kind="stable")
+        found = 0
+        for k in order[:: max(1, order.size // 64)][:tries_per_region]:
+            x, y = known[k]
+            p = params[lookup[(x, y)]].copy()
+            seed = zncc_search(reference, target, x, y, grid.half, int(settings.search_radius_px), (p[0], p[6]))
+            if seed is None or not seed.zncc >= min_zncc:
+                continue
+            p[0], p[6] = seed.parameters[0], seed.parameters[6]
+            seeds.append(Seed(x, y, p, seed.zncc))
+            found += 1
+            if found >= per_region:
+                break
+    return seeds
+
+
+def test_warm_start_seeds_are_those_a_dict_of_positions_gives(measured):
+    """sequence_seeds finds the previous match's nodes by sorted position keys: the same seeds (node, parameters,
+    score) as a dict lookup, also when most previous points failed (only every third one kept)."""
+    from copy import deepcopy
+
+    from measurement.dic import Status
+    from measurement.stereo_dic import sequence_seeds
+
+    images, shape, state = measured
+    sparse = deepcopy(state.right_match)
+    sparse.status[np.arange(sparse.status.size) % 3 != 0] = int(Status.LOW_CORRELATION)
+    for previous in (state.right_match, sparse):
+        fast = sequence_seeds(shape.reference.values, images["right_def"], shape.grid, previous, SETTINGS)
+        slow = _sequence_seeds_by_dict(shape.reference.values, images["right_def"], shape.grid, previous, SETTINGS)
+        assert len(fast) == len(slow) >= SETTINGS.regions
+        for a, b in zip(fast, slow):
+            assert (a.x, a.y, a.zncc) == (b.x, b.y, b.zncc) and np.array_equal(a.parameters, b.parameters)
+
+
 def _csv_reference(header, rows):
     """The per-value writer the fast one replaced (csv module, one value at a time): the independent reference."""
     import csv
