@@ -158,10 +158,10 @@ def propagate_grid(image, grad_x, grad_y, coef, degree, bad, check_bad, grid_x, 
     """:func:`propagate` over every band from the seeds, then one single-region pass that reaches, from their
     converged neighbours, the points a band could not reach from its own seeds. Arguments as :func:`propagate`
     (``settings`` a :class:`.correlate.DICSettings`; ``cache_arrays`` = (use_cache, info, hinv, a, s))."""
-    # Bands can hold very different amounts of work (part of the ROI out of view): hand them out one at a time
-    # instead of in fixed chunks per thread.
     grid_x = np.asarray(grid_x, dtype=np.int64)
     grid_y = np.asarray(grid_y, dtype=np.int64)
+    # Bands can hold very different amounts of work (part of the ROI out of view): hand them out one at a time
+    # instead of in fixed chunks per thread.
     with numba.parallel_chunksize(1):
         propagate(image, grad_x, grad_y, coef, degree, bad, check_bad, grid_x, grid_y, active, region, n_regions,
                   seed_rc, seed_p, half, settings.order, min_std, int(settings.max_iterations),

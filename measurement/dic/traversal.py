@@ -21,6 +21,7 @@ import numpy as np
 
 from .grid import PoiGrid
 from .guide import propagate_grid
+from .icgn import INFO_SIZE
 from .status import NOT_REACHED
 
 #: What :func:`.correlate.correlate` accepts as ``traversal``.
@@ -76,7 +77,8 @@ def propagate_columns(reference, coefficients, degree, bad, check_bad, grid: Poi
         cache_arrays = (True, cache_t.info, cache_t.hinv, cache_t.a, cache_t.s)
     else:
         values_t, grad_x_t, grad_y_t = transposed_reference(reference)
-        cache_arrays = (False, np.zeros((1, 1, 6)), np.zeros((1, 1, 1, 1)), np.zeros((1, 1, 1)), np.zeros((1, 1, 1)))
+        cache_arrays = (False, np.zeros((1, 1, INFO_SIZE)), np.zeros((1, 1, 1, 1)), np.zeros((1, 1, 1)),
+                        np.zeros((1, 1, 1)))
     coefficients_t = np.ascontiguousarray(coefficients.T)
     bad_t = np.ascontiguousarray(bad.T) if check_bad else bad
     rows, cols = grid.shape
