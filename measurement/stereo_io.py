@@ -24,6 +24,10 @@ SIGMA_COLUMNS = ("sigma_X_um", "sigma_Y_um", "sigma_Z_um", "sigma_U_um", "sigma_
                  "bias_bound_U_um", "bias_bound_V_um", "bias_bound_W_um", "sigma_flag")
 CSV_COLUMNS = ("x", "y", "X", "Y", "Z", "U", "V", "W", "D", "zncc", "residual", "status", "status_name",
                *SIGMA_COLUMNS)
+#: Surface strain (:mod:`measurement.stereo_strain`): Green-Lagrange, dimensionless, tensor shear, in the local frame
+#: (x = the left image's x projected onto the surface); principal strains e1 >= e2 and the angle of e1 from x (deg);
+#: the standard uncertainty of exx, eyy, exy. Written after :data:`CSV_COLUMNS` when a strain is given.
+STRAIN_COLUMNS = ("exx", "eyy", "exy", "e1", "e2", "strain_angle_deg", "sigma_exx", "sigma_eyy", "sigma_exy")
 
 
 def _fmt(value: float) -> str:
@@ -100,6 +104,13 @@ def text_lines(columns: list[tuple[str, np.ndarray]]) -> list[str]:
     return [row_format % row for row in zip(*lists)]
 
 
+def strain_columns(strain) -> list[tuple[str, np.ndarray]]:
+    """The columns :data:`STRAIN_COLUMNS` of a :class:`measurement.stereo_strain.StateStrain`, as (kind, values)."""
+    sigma = strain.sigma if strain.sigma is not None else np.full((strain.E11.size, 3), np.nan)
+    return [("g", v) for v in (strain.E11, strain.E22, strain.E12, strain.E1, strain.E2, strain.angle_deg,
+                                *sigma.T)]
+
+
 def state_columns(shape: StereoShape, state: StereoState | None = None) -> list[tuple[str, np.ndarray]]:
     """The columns :data:`CSV_COLUMNS` of :func:`write_state_csv`, as (kind, values) for :func:`text_lines`."""
     if state is None:
@@ -121,11 +132,15 @@ def state_columns(shape: StereoShape, state: StereoState | None = None) -> list[
             *(("g", v) for v in sig.values()), ("s", ["" if v < 0 else str(int(v)) for v in flag.tolist()])]
 
 
-def write_state_csv(path: str | Path, shape: StereoShape, state: StereoState | None = None) -> Path:
+def write_state_csv(path: str | Path, shape: StereoShape, state: StereoState | None = None, strain=None) -> Path:
     """Per-point CSV: left reference pixel (x, y), position X, Y, Z and displacement U, V, W, D (left camera
-    frame, mm), ZNCC, triangulation residual (px), status, and the uncertainty (:data:`SIGMA_COLUMNS`, µm).
+    frame, mm), ZNCC, triangulation residual (px), status, and the uncertainty (:data:`SIGMA_COLUMNS`, µm); with
+    ``strain`` (:class:`measurement.stereo_strain.StateStrain`) the :data:`STRAIN_COLUMNS` after them.
     ``state=None`` writes the reference shape."""
-    write_csv_lines(path, CSV_COLUMNS, text_lines(state_columns(shape, state)))
+    columns, header = state_columns(shape, state), CSV_COLUMNS
+    if strain is not None:
+        columns, header = columns + strain_columns(strain), CSV_COLUMNS + STRAIN_COLUMNS
+    write_csv_lines(path, header, text_lines(columns))
     return Path(path)
 
 
@@ -140,10 +155,13 @@ def write_csv_lines(path: str | Path, header, lines: list[str]) -> Path:
     return path
 
 
-def write_state_vtk(path: str | Path, shape: StereoShape, state: StereoState | None = None) -> Path:
-    """Legacy-VTK POLYDATA of the valid points with displacement (vector), D, ZNCC and residual (scalars)."""
+def write_state_vtk(path: str | Path, shape: StereoShape, state: StereoState | None = None, strain=None) -> Path:
+    """Legacy-VTK POLYDATA of the valid points with displacement (vector), D, ZNCC and residual (scalars), and
+    with ``strain`` the :data:`STRAIN_COLUMNS` as scalars."""
     path = Path(path)
     sig = {k: v for k, v in state_sigmas(shape, state).items() if k != "sigma_flag"}
+    if strain is not None:
+        sig.update({name: values for name, (_, values) in zip(STRAIN_COLUMNS, strain_columns(strain))})
     if state is None:
         valid = shape.valid
         X, U = shape.X_mm[valid], np.zeros((int(valid.sum()), 3))
@@ -172,7 +190,26 @@ SUMMARY_COLUMNS = ("state", "left", "right", "result", "points", "measured", "me
                    "median_sigma_U_um", "median_sigma_V_um", "median_sigma_W_um",
                    "median_sigma_U_calib_um", "median_sigma_V_calib_um", "median_sigma_W_calib_um",
                    "sigma_mean_U_calib_um", "sigma_mean_V_calib_um", "sigma_mean_W_calib_um",
-                   "sigma_flagged_fraction", "noise_source", "error")
+                   "sigma_flagged_fraction", "noise_source", "error",
+                   "strain_points", "max_e1", "max_e1_x_px", "max_e1_y_px", "min_e2",
+                   "median_sigma_exx", "median_sigma_eyy", "median_sigma_exy")
+_STRAIN_SUMMARY = SUMMARY_COLUMNS[SUMMARY_COLUMNS.index("strain_points"):]
+
+
+def strain_summary(shape: StereoShape, strain) -> dict:
+    """Per-state figures of a :class:`measurement.stereo_strain.StateStrain`: the points with a strain, the largest
+    principal strain e1 and where it is (left reference px), the smallest e2, the median sigma of exx, eyy, exy."""
+    ok = np.isfinite(strain.E1)
+    out = {"strain_points": int(ok.sum())}
+    if ok.any():
+        i = int(np.nanargmax(np.where(ok, strain.E1, -np.inf)))
+        out.update(max_e1=float(strain.E1[i]), max_e1_x_px=float(shape.x[i]), max_e1_y_px=float(shape.y[i]),
+                   min_e2=float(np.nanmin(strain.E2[ok])))
+    if strain.sigma is not None:
+        for k, c in enumerate(("exx", "eyy", "exy")):
+            values = strain.sigma[:, k][np.isfinite(strain.sigma[:, k])]
+            out[f"median_sigma_{c}"] = float(np.median(values)) if values.size else float("nan")
+    return out
 
 
 def sigma_summary(shape: StereoShape, state: StereoState | None = None) -> dict:
@@ -206,7 +243,7 @@ def write_state_summary(path: str | Path, rows: list[dict]) -> Path:
     holds the sigma of X, Y, Z under the U, V, W names) and the error of a state that was refused.
 
     ``rows``: dicts with ``state``, ``left``, ``right``, ``quality`` (:class:`StereoQuality` or None) and
-    optionally ``mean_D_mm``, the keys of :func:`sigma_summary` and ``error``.
+    optionally ``mean_D_mm``, the keys of :func:`sigma_summary` and of :func:`strain_summary`, and ``error``.
     """
     with atomic_writer(Path(path), "w", newline="") as handle:
         writer = csv.writer(handle)
@@ -221,5 +258,7 @@ def write_state_summary(path: str | Path, rows: list[dict]) -> Path:
                              _fmt(row["mean_D_mm"]) if "mean_D_mm" in row else "",
                              *(_fmt(row[c]) if c in row else "" for c in SUMMARY_COLUMNS[10:19]),
                              _fmt(row["sigma_flagged_fraction"]) if "sigma_flagged_fraction" in row else "",
-                             row.get("noise_source", ""), row.get("error", "")])
+                             row.get("noise_source", ""), row.get("error", ""),
+                             *((_fmt(row[c]) if isinstance(row[c], float) else row[c]) if c in row else ""
+                               for c in _STRAIN_SUMMARY)])
     return Path(path)

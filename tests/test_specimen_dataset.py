@@ -166,6 +166,18 @@ def test_specimen_through_export_stereo_and_score_clis(tmp_path, capsys):
     for state in m["states"]:
         assert state["valid_points"] > 100
         assert state["rms_um"] < 10.0, state
+    # strain (issue 37): every state file carries it, its window is in the manifest, and score compares it with the
+    # truth through that window: for the linear field the filtered peak is the analytic (F^T F - I)/2's largest
+    # principal value, a + a^2/2 with a = 1e-3, 2e-3 (1e-6 relative), and the measured peak is within 10 % of it
+    header = results[0].read_text().splitlines()[0].split(",")
+    assert header[-9:] == ["exx", "eyy", "exy", "e1", "e2", "strain_angle_deg", "sigma_exx", "sigma_eyy", "sigma_exy"]
+    strain = _json.loads((st / "manifest.json").read_text())["settings"]["strain"]
+    assert strain["window_points"] == 9 and strain["measure"] == "green-lagrange"
+    assert strain["gauge_px"] == (9 - 1) * 12 + 33
+    for state, a in zip(m["states"][:2], (1e-3, 2e-3)):
+        assert state["strain_peak_e1_windowed_microstrain"] == pytest.approx(1e6 * (a + a * a / 2), rel=1e-6)
+        assert abs(state["strain_peak_e1_error_percent"]) < 10.0, state
+    assert np.isnan(m["states"][2]["strain_peak_e1_error_percent"])       # the static repeat has no peak
 
     # a wrong --state beside the images' own state is refused naming both
     assert main(["score", str(data), str(results[0]), "--state", "2", "--out", str(tmp_path / "sc2")]) == 2

@@ -60,6 +60,12 @@ class ToolResult:
     sigma_uv_px : (N, 2) float or None, the tool's own standard uncertainty of u, v
     sigma_U_mm : (N, 3) float or None, the tool's own standard uncertainty of U, V, W (this project's: the random
         and, where known, the calibration part in quadrature)
+    surface_strain : (N, 3) float or None, the surface strain of a 3-D result: Green-Lagrange E11, E22, E12
+        (dimensionless, tensor shear) in the local frame of :mod:`measurement.strain` (x: the left image's x
+        projected onto the surface), converted from the tool's convention
+    surface_strain_sigma : (N, 3) float or None, the tool's standard uncertainty of the same
+    strain_window : dict or None, how the tool computed its strain: ``{"window_points": k or None (triangles),
+        "fit": "linear" | "quadratic"}`` where the file (or its manifest) says; None where it does not
     """
 
     source: Path
@@ -75,6 +81,9 @@ class ToolResult:
     strain: np.ndarray | None = None
     sigma_uv_px: np.ndarray | None = None
     sigma_U_mm: np.ndarray | None = None
+    surface_strain: np.ndarray | None = None
+    surface_strain_sigma: np.ndarray | None = None
+    strain_window: dict | None = None
 
     @property
     def has_2d(self) -> bool:
@@ -141,13 +150,35 @@ def read_native(path: Path) -> ToolResult:
                 calib = np.column_stack([col(f"sigma_{c}_calib_um") for c in "UVW"])
                 sigma = np.sqrt(sigma ** 2 + np.where(np.isfinite(calib), calib, 0.0) ** 2)
             sigma = sigma * 1e-3
-        return ToolResult(path, "scheimpflug-dic-workbench", x, y, valid, X_mm=X, U_mm=U, sigma_U_mm=sigma)
+        strain = strain_sigma = window = None
+        if "exx" in header:
+            strain = np.column_stack([col(c) for c in ("exx", "eyy", "exy")])
+            strain[~valid] = np.nan
+            if "sigma_exx" in header:
+                strain_sigma = np.column_stack([col(f"sigma_{c}") for c in ("exx", "eyy", "exy")])
+            window = _native_strain_window(path)
+        return ToolResult(path, "scheimpflug-dic-workbench", x, y, valid, X_mm=X, U_mm=U, sigma_U_mm=sigma,
+                          surface_strain=strain, surface_strain_sigma=strain_sigma, strain_window=window)
     u, v = col("u"), col("v")
     valid = np.isfinite(u) & np.isfinite(v)
     if names is not None:
         valid &= np.array([n == "converged" for n in names])
     sigma = np.column_stack([col("sigma_u_px"), col("sigma_v_px")]) if "sigma_u_px" in header else None
     return ToolResult(path, "scheimpflug-dic-workbench", x, y, valid, u, v, sigma_uv_px=sigma)
+
+
+def _native_strain_window(path: Path) -> dict | None:
+    """The strain window a ``workbench stereo`` result was computed with (its folder's manifest), or None."""
+    from workbench.manifest import DatasetFolderError, read_manifest
+
+    try:
+        manifest = read_manifest(path.parent)
+    except DatasetFolderError:
+        return None
+    strain = (manifest or {}).get("settings", {}).get("strain") if (manifest or {}).get("kind") == "stereo" else None
+    if not isinstance(strain, dict) or "window_points" not in strain:
+        return None
+    return {"window_points": strain["window_points"], "fit": strain.get("fit") or "linear"}
 
 
 def read_dice(path: Path) -> ToolResult:

@@ -75,6 +75,19 @@ def subset_arg(text: str) -> int:
     return value
 
 
+def strain_window_arg(text: str):
+    """``--strain-window``: an odd number of grid points >= 3, ``triangles`` (the paper's Cosserat elements) or
+    ``none`` (no strain); returns the int, ``"triangles"`` or None."""
+    word = text.strip().lower()
+    if word in ("triangles", "none"):
+        return None if word == "none" else "triangles"
+    value = integer_arg(text)
+    if value < 3 or value % 2 == 0:
+        raise argparse.ArgumentTypeError(f"must be an odd number of grid points >= 3, 'triangles' or 'none', "
+                                         f"got {text!r}")
+    return value
+
+
 def positive_float_arg(text: str) -> float:
     value = number_arg(text)
     if value <= 0:

@@ -8,7 +8,8 @@ import numpy as np
 
 from workbench.commands.options import (add_auto_roi_options, auto_roi_settings, fraction_arg, input_file,
                                         output_folder, paired_globs, poi_grid, positive_float_arg, positive_int_arg,
-                                        read_image_for, resolved, roi_arg, size_text, subset_arg, zncc_arg)
+                                        read_image_for, resolved, roi_arg, size_text, strain_window_arg, subset_arg,
+                                        zncc_arg)
 
 
 def add_parser(sub) -> None:
@@ -38,6 +39,12 @@ def add_parser(sub) -> None:
                     help="automatic ROI: points whose left-reference subset lacks texture are flagged low_texture "
                          "and not matched; matches that disagree with their neighbours are flagged inconsistent")
     add_auto_roi_options(st)
+    st.add_argument("--strain-window", type=strain_window_arg, default=9, metavar="K|triangles|none",
+                    help="surface strain of every state (Green-Lagrange, columns exx..e2 and their sigma): a window of "
+                         "K x K grid points (odd, >= 3; the virtual strain gauge is (K - 1) x step + subset px, printed "
+                         "in mm too), 'triangles' (the paper's Cosserat elements, no sigma) or 'none'; default 9")
+    st.add_argument("--strain-fit", choices=("linear", "quadratic"), default="linear",
+                    help="order of the strain window's displacement fit, default linear")
     st.add_argument("--static-left", type=Path, default=None,
                     help="a second exposure of the unmoved reference scene, left camera (with --static-right): each "
                          "camera's noise for the uncertainty columns is measured from it; without, the noise is "
@@ -115,6 +122,14 @@ def stereo_command(args) -> int:
     poi_grid(left_ref, args, mask, what="left reference image")
     auto_roi = auto_roi_settings(args)
     settings = DICSettings(subset_size=args.subset, step=args.step, order=args.order, min_zncc=args.min_zncc)
+    strain_settings = None
+    if args.strain_window is not None:
+        from measurement.stereo_strain import StrainSettings
+
+        window = None if args.strain_window == "triangles" else args.strain_window
+        if window is None and args.strain_fit != "linear":
+            raise ValueError("--strain-fit quadratic needs a strain window (--strain-window K), not triangles")
+        strain_settings = StrainSettings(window, args.strain_fit)
     # One numbering everywhere: the reference is state 0, the k-th deformed pair state k (as in a dataset).
     names = [f"state_{k:03d}" for k in range(1, len(left_files) + 1)]
     planned = ["reference.csv", "reference.vtk", "summary.csv"] + [f"{n}.{e}" for n in names for e in ("csv", "vtk")]
@@ -143,9 +158,19 @@ def stereo_command(args) -> int:
     from measurement.stereo_dic import calibration_uncertainty
 
     calibration_uncertainty(shape, None, rig)       # NaN, with a warning, for a calibration without covariance
+    strains = None
+    if strain_settings is not None:
+        from measurement.stereo_strain import SequenceStrain
+
+        cameras = (rig.left, rig.right, rig.R_right_from_left, rig.T_right_from_left_mm)
+        try:
+            strains = SequenceStrain(shape, cameras, strain_settings)
+        except ValueError as err:
+            raise ValueError(f"--strain-window: {err}") from None
     prepare_folder(args.out, "stereo", planned, overwrite=args.overwrite)
-    written = [write_state_csv(args.out / "reference.csv", shape).name,
-               write_state_vtk(args.out / "reference.vtk", shape).name]
+    reference_strain = strains.reference() if strains is not None else None
+    written = [write_state_csv(args.out / "reference.csv", shape, strain=reference_strain).name,
+               write_state_vtk(args.out / "reference.vtk", shape, strain=reference_strain).name]
     q = shape.quality
     print(f"reference: {q.measured}/{shape.x.size} points triangulated, median residual {q.median_residual_px:.4f} px, "
           f"95th percentile {q.p95_residual_px:.4f} px")
@@ -154,7 +179,14 @@ def stereo_command(args) -> int:
               f" grey, right {shape.noise['right'].sigma_grey:.3g} grey)")
     if shape.auto_roi_report is not None:
         print(f"reference {shape.auto_roi_report.summary()}")
-    from measurement.stereo_io import sigma_summary
+    if strains is not None:
+        what = ("triangles (Cosserat elements)" if strain_settings.window is None else
+                f"window {strain_settings.window} x {strain_settings.window} points, {strain_settings.fit} fit")
+        no_sigma = "" if strains.has_sigma else (" (no strain sigma: the triangles have no windowed fit)"
+                                                 if strain_settings.window is None else " (no strain sigma)")
+        print(f"strain: Green-Lagrange, {what}; virtual strain gauge {strains.gauge_px:g} px = {strains.gauge_mm:.3g} mm "
+              f"on the specimen{no_sigma}")
+    from measurement.stereo_io import sigma_summary, strain_summary
 
     rows = [{"state": "reference", "left": str(args.left_ref), "right": str(args.right_ref), "quality": q,
              **sigma_summary(shape)}]
@@ -182,17 +214,24 @@ def stereo_command(args) -> int:
             continue
         previous = state
         calibration_uncertainty(shape, state, rig)
-        written += [write_state_csv(args.out / f"{names[i]}.csv", shape, state).name,
-                    write_state_vtk(args.out / f"{names[i]}.vtk", shape, state).name]
+        strain = strains.state(state) if strains is not None else None
+        written += [write_state_csv(args.out / f"{names[i]}.csv", shape, state, strain).name,
+                    write_state_vtk(args.out / f"{names[i]}.vtk", shape, state, strain).name]
         images.append(_image_record(k, f"{names[i]}.csv", fl, fr, left_def, right_def))
         q = state.quality
         rows.append({"state": names[i], "left": fl, "right": fr, "quality": q,
-                     "mean_D_mm": float(np.nanmean(state.D_mm[state.valid])), **sigma_summary(shape, state)})
+                     "mean_D_mm": float(np.nanmean(state.D_mm[state.valid])), **sigma_summary(shape, state),
+                     **(strain_summary(shape, strain) if strain is not None else {})})
         tqdm.write(f"state {k} ({Path(fl).name}, {Path(fr).name}): {q.measured}/{q.points} points, median residual "
                    f"{q.median_residual_px:.4f} px, 95th percentile {q.p95_residual_px:.4f} px, mean D "
                    f"{rows[-1]['mean_D_mm']:.4f} mm; median sigma U, V, W {rows[-1]['median_sigma_U_um']:.3g}, "
                    f"{rows[-1]['median_sigma_V_um']:.3g}, {rows[-1]['median_sigma_W_um']:.3g} µm, "
                    f"{100 * rows[-1]['sigma_flagged_fraction']:.1f} % flagged")
+        if strain is not None and "max_e1" in rows[-1]:
+            r = rows[-1]
+            tqdm.write(f"state {k} strain: largest e1 {1e6 * r['max_e1']:.0f} µε at ({r['max_e1_x_px']:g}, "
+                       f"{r['max_e1_y_px']:g}) px, smallest e2 {1e6 * r['min_e2']:.0f} µε"
+                       + (f", median sigma exx {1e6 * r['median_sigma_exx']:.3g} µε" if "median_sigma_exx" in r else ""))
         if state.auto_roi_report is not None:
             tqdm.write(f"state {k} {state.auto_roi_report.summary()}")
     written.append(write_state_summary(args.out / "summary.csv", rows).name)
@@ -204,6 +243,7 @@ def stereo_command(args) -> int:
                      "auto_roi": None if auto_roi is None else vars(auto_roi) | {"noise_sigma_used_grey":
                                                                                   shape.noise_sigma_grey},
                      "skipped_states": skipped, "images": images,
+                     "strain": None if strains is None else strains.description(),
                      "static_left": None if args.static_left is None else str(args.static_left),
                      "static_right": None if args.static_right is None else str(args.static_right),
                      "noise": {side: {"source": m.source, "sigma_grey": m.sigma_grey,

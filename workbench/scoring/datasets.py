@@ -70,6 +70,11 @@ class PointTruth:
         in the reference image (what 2-D DIC on the left images measures); zero for state 0
     X_left_mm : (S, N, 3) float or None, mm, its position in state s, left camera frame (stereo only)
     xy_right_px : (S, N, 2) float or None, px, where it appears in the right image of state s (stereo only)
+    strain_left : (S, N, 3, 3) float or None, the exact surface Green-Lagrange strain of state s relative to state 0
+        at the material point (dimensionless, tensor shear), as a tensor of the left camera frame tangent to the
+        reference surface (``E = Q E_2 Q^T`` for the 2 x 2 strain ``E_2`` in an orthonormal tangent basis ``Q``);
+        its component along unit tangents ``a, b`` is ``a @ E @ b`` (:func:`strain_components`). Stereo datasets,
+        with ``point_truth(..., strain=True)``; zero in a rigid-motion dataset.
     """
 
     x_px: np.ndarray
@@ -78,6 +83,7 @@ class PointTruth:
     uv_left_px: np.ndarray
     X_left_mm: np.ndarray | None = None
     xy_right_px: np.ndarray | None = None
+    strain_left: np.ndarray | None = None
 
     @property
     def displacement_left_mm(self) -> np.ndarray | None:
@@ -212,14 +218,43 @@ def _stereo_truth(dataset: Dataset):
     return load_bending_truth(dataset.folder)
 
 
-def point_truth(dataset: Dataset, x_px, y_px) -> PointTruth:
-    """The truth of the points ``(x_px, y_px)`` of the left reference image in every state of ``dataset``."""
+def strain_components(strain_left: np.ndarray, e1: np.ndarray, e2: np.ndarray) -> np.ndarray:
+    """Components E11, E22, E12 (..., 3) of strain tensors (..., 3, 3) along the unit tangents ``e1``, ``e2`` (..., 3)."""
+    E11 = np.einsum("...i,...ij,...j->...", e1, strain_left, e1)
+    E22 = np.einsum("...i,...ij,...j->...", e2, strain_left, e2)
+    E12 = np.einsum("...i,...ij,...j->...", e1, strain_left, e2)
+    return np.stack([E11, E22, E12], axis=-1)
+
+
+def _strain_truth(dataset: Dataset, t, pixels: np.ndarray, X_specimen: np.ndarray | None, valid: np.ndarray,
+                  n_states: int) -> np.ndarray:
+    """(S, N, 3, 3) exact surface strain of every state at the points (:class:`PointTruth`), NaN where not valid."""
+    out = np.full((n_states, len(pixels), 3, 3), np.nan)
+    if dataset.kind == "rigid-motion":
+        out[:, valid] = 0.0                 # a rigid motion strains nothing
+        return out
+    for k in range(n_states):
+        if dataset.kind == "specimen":
+            E, Q = t.strain_truth(pixels, k)
+        else:                               # bending: at the face's material points
+            E, Q, _ = t.strain_truth(X_specimen, k)
+        out[k] = np.einsum("nia,nab,njb->nij", Q, E, Q)
+    out[:, ~valid] = np.nan
+    return out
+
+
+def point_truth(dataset: Dataset, x_px, y_px, *, strain: bool = False) -> PointTruth:
+    """The truth of the points ``(x_px, y_px)`` of the left reference image in every state of ``dataset``
+    (``strain=True``: also the exact surface strain, stereo datasets only)."""
     x = np.asarray(x_px, float).ravel()
     y = np.asarray(y_px, float).ravel()
     if x.shape != y.shape:
         raise ValueError(f"x_px and y_px must have the same length, got {x.size} and {y.size}")
     w, h = dataset.image_size_px
     inside = (x >= -0.5) & (x <= w - 0.5) & (y >= -0.5) & (y <= h - 0.5)
+    if strain and not dataset.stereo:
+        raise ValueError(f"{dataset.folder}: a 2-D dataset has no surface strain truth (its 2-D strain: "
+                         "workbench.scoring.metrics.truth_strain_2d)")
     if dataset.kind == "dic2d":
         truth = json.loads((dataset.folder / "truth.json").read_text())
         uv = np.zeros((2, x.size, 2))
@@ -227,13 +262,15 @@ def point_truth(dataset: Dataset, x_px, y_px) -> PointTruth:
         uv[:, ~inside] = np.nan
         return PointTruth(x, y, inside, uv)
     t = _stereo_truth(dataset)
-    _, X_world = t.points_of_interest(np.column_stack([x, y]))          # world = left camera frame
+    pixels = np.column_stack([x, y])
+    X_specimen, X_world = t.points_of_interest(pixels)          # world = left camera frame
     valid = inside & np.all(np.isfinite(X_world[0]), axis=1)
     X_world[:, ~valid] = np.nan
     S, N = X_world.shape[:2]
     left = t.project("left", X_world.reshape(-1, 3)).reshape(S, N, 2)
     right = t.project("right", X_world.reshape(-1, 3)).reshape(S, N, 2)
-    return PointTruth(x, y, valid, left - left[0], X_world, right)
+    E = _strain_truth(dataset, t, pixels, X_specimen, valid, S) if strain else None
+    return PointTruth(x, y, valid, left - left[0], X_world, right, E)
 
 
 def true_rig(dataset: Dataset):
@@ -297,24 +334,58 @@ def dense_truth(dataset: Dataset, step_px: int = 1) -> dict:
     return out
 
 
-def roi_polygon_px(valid: np.ndarray, x_px: np.ndarray, y_px: np.ndarray, margin_px: int) -> np.ndarray:
-    """A polygon (M, 2) px around the region where the truth is valid, shrunk by ``margin_px``.
+def _eroded(valid: np.ndarray, step: int, margin_px: int) -> np.ndarray:
+    import cv2
+
+    r = max(1, int(np.ceil(margin_px / step)))
+    return cv2.erode(valid.astype(np.uint8), np.ones((2 * r + 1, 2 * r + 1), np.uint8), borderValue=0)
+
+
+def roi_polygons_px(valid: np.ndarray, x_px: np.ndarray, y_px: np.ndarray,
+                    margin_px: int) -> tuple[np.ndarray, list[np.ndarray]]:
+    """The region of interest where the truth is valid, shrunk by ``margin_px``: its outer polygon (M, 2) px and the
+    polygons of the holes inside it (a plate's hole, grown by the margin), each (K, 2) px.
 
     ``valid`` is the (H', W') mask of :func:`workbench.scoring.datasets.dense_truth` on the pixels ``x_px`` x ``y_px``.
-    The largest connected region is kept, eroded so that subsets centred inside it see only the specimen.
+    The largest connected region is kept, eroded so that subsets centred inside it (and outside its holes) see only
+    the specimen.
     """
     import cv2
 
     step = int(x_px[1] - x_px[0]) if len(x_px) > 1 else 1
-    mask = valid.astype(np.uint8)
-    r = max(1, int(np.ceil(margin_px / step)))
-    mask = cv2.erode(mask, np.ones((2 * r + 1, 2 * r + 1), np.uint8), borderValue=0)
-    contours, _ = cv2.findContours(mask, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
-    if not contours:
+    mask = _eroded(valid, step, margin_px)
+    contours, hierarchy = cv2.findContours(mask, cv2.RETR_CCOMP, cv2.CHAIN_APPROX_SIMPLE)
+    outer = [i for i in range(len(contours)) if hierarchy[0][i][3] < 0]
+    if not outer:
         raise ValueError(f"no region of the reference image sees the specimen {margin_px} px from its edge")
-    contour = max(contours, key=cv2.contourArea)
-    poly = cv2.approxPolyDP(contour, 1.0, True).reshape(-1, 2).astype(float)
-    return np.column_stack([x_px[0] + poly[:, 0] * step, y_px[0] + poly[:, 1] * step])
+    best = max(outer, key=lambda i: cv2.contourArea(contours[i]))
+
+    def polygon(contour):
+        poly = cv2.approxPolyDP(contour, 1.0, True).reshape(-1, 2).astype(float)
+        return np.column_stack([x_px[0] + poly[:, 0] * step, y_px[0] + poly[:, 1] * step])
+
+    holes = [polygon(contours[i]) for i in range(len(contours)) if hierarchy[0][i][3] == best
+             and cv2.contourArea(contours[i]) > 0]
+    return polygon(contours[best]), holes
+
+
+def roi_polygon_px(valid: np.ndarray, x_px: np.ndarray, y_px: np.ndarray, margin_px: int) -> np.ndarray:
+    """The outer polygon (M, 2) px of :func:`roi_polygons_px` (the region's holes are not in it)."""
+    return roi_polygons_px(valid, x_px, y_px, margin_px)[0]
+
+
+def poi_mask(valid: np.ndarray, x_px: np.ndarray, y_px: np.ndarray, image_size_px: tuple[int, int],
+             margin_px: int) -> np.ndarray:
+    """(H, W) bool over the left reference image: the pixels whose ``margin_px`` neighbourhood sees only the specimen
+    (a point of interest there has a subset of up to ``2 margin_px - 1`` px on the specimen): the mask a DIC tool is
+    given (a VIC-3D or MatchID mask image, ``workbench stereo --mask``). ``valid`` on the pixels ``x_px`` x ``y_px``
+    (:func:`dense_truth`) is taken to every pixel by its nearest sample."""
+    w, h = image_size_px
+    step = int(x_px[1] - x_px[0]) if len(x_px) > 1 else 1
+    inside = _eroded(valid, step, margin_px).astype(bool)
+    rows = np.clip(np.rint((np.arange(h) - y_px[0]) / step).astype(int), 0, inside.shape[0] - 1)
+    cols = np.clip(np.rint((np.arange(w) - x_px[0]) / step).astype(int), 0, inside.shape[1] - 1)
+    return inside[np.ix_(rows, cols)]
 
 
 def subset_roi_xyxy_px(dataset: Dataset, subset_px: int) -> tuple[int, int, int, int]:

@@ -35,7 +35,7 @@ from pathlib import Path
 import numpy as np
 
 from labio.atomic import atomic_write_bytes, atomic_write_text, atomic_writer
-from workbench.scoring.datasets import Dataset, dense_truth, point_truth, roi_polygon_px, true_rig
+from workbench.scoring.datasets import Dataset, dense_truth, poi_mask, point_truth, roi_polygons_px, true_rig
 
 FORMATS = ("native", "dice", "vic3d", "matchid", "opencv")
 #: Calibration file name per format.
@@ -135,7 +135,13 @@ def _points_csv(path: Path, dataset: Dataset, pt) -> None:
                 writer.writerow(row)
 
 
-def _dice_files(dataset: Dataset, names, poly: np.ndarray, settings: ExportSettings) -> dict[str, str]:
+def _dice_polygon(poly: np.ndarray, indent: str) -> list[str]:
+    return [f"{indent}begin polygon", f"{indent}  begin vertices", *(f"{indent}    {x:.0f} {y:.0f}" for x, y in poly),
+            f"{indent}  end vertices", f"{indent}end polygon"]
+
+
+def _dice_files(dataset: Dataset, names, poly: np.ndarray, settings: ExportSettings,
+                holes: list | None = None) -> dict[str, str]:
     """DICe's input.xml, params.xml and subset_defs.txt (paths relative to the export folder)."""
     p = lambda name, typ, value: f'<Parameter name="{name}" type="{typ}" value="{value}" />'  # noqa: E731
     lines = ["<!-- written by workbench export (scheimpflug-dic-workbench) -->", "<ParameterList>",
@@ -158,10 +164,12 @@ def _dice_files(dataset: Dataset, names, poly: np.ndarray, settings: ExportSetti
               p("enable_translation", "bool", "true"), p("enable_rotation", "bool", "true"),
               p("enable_normal_strain", "bool", "true"), p("enable_shear_strain", "bool", "true"),
               p("output_delimiter", "string", ","), "</ParameterList>"]
-    roi = ["# region of interest: where the left reference image sees the specimen (workbench export)",
-           "begin region_of_interest", "  begin boundary", "    begin polygon", "      begin vertices",
-           *(f"        {x:.0f} {y:.0f}" for x, y in poly), "      end vertices", "    end polygon",
-           "  end boundary", "end region_of_interest"]
+    roi = ["# region of interest: where the left reference image sees the specimen (workbench export); excluded: its "
+           "holes, grown by half a subset", "begin region_of_interest", "  begin boundary", *_dice_polygon(poly, "    "),
+           "  end boundary"]
+    if holes:
+        roi += ["  begin excluded", *(line for h in holes for line in _dice_polygon(h, "    ")), "  end excluded"]
+    roi.append("end region_of_interest")
     return {"input.xml": "\n".join(lines) + "\n", "params.xml": "\n".join(params) + "\n",
             "subset_defs.txt": "\n".join(roi) + "\n"}
 
@@ -202,7 +210,10 @@ def _readme(dataset: Dataset, fmt: str, record: dict) -> str:
              "Run: " + _RUN[fmt].format(dataset=dataset.folder), "",
              "Truth: `truth/truth_reference.npz` (per pixel of the left reference image: `valid`, `uv_left_px` "
              "(state, row, column, 2), and for stereo `X_left_mm`, `xy_right_px`; NaN off the specimen), "
-             "`truth/points.csv` (a grid over the ROI, every state), `truth/roi_polygon_px.csv`.", ""]
+             "`truth/points.csv` (a grid over the ROI, every state), `truth/roi_polygon_px.csv` (its outer "
+             "boundary; `export.json` lists the holes excluded from it) and, for stereo, `truth/roi_mask_left.png` (the "
+             "same region as a mask image, 255 inside: VIC-3D's or MatchID's ROI import, `workbench stereo --mask`).",
+             ""]
     if record["calibration"]:
         lines.append(f"Calibration: `{record['calibration']['file']}`:")
         lines += [f"- {c['camera']}: {c['model']}, {c['mean_px']:.3g} px mean / {c['max_px']:.3g} px max from the "
@@ -294,8 +305,16 @@ def _export_into(dataset: Dataset, fmt: str, folder: Path, settings: ExportSetti
     (folder / "truth").mkdir()
     atomic_write_bytes(folder / "truth" / "truth_reference.npz", buffer.getvalue())
     margin = settings.subset_px // 2 + 1
+    holes = []
     if dataset.stereo:
-        poly = roi_polygon_px(dense["valid"], dense["x_px"], dense["y_px"], margin)
+        poly, holes = roi_polygons_px(dense["valid"], dense["x_px"], dense["y_px"], margin)
+        # the same region as an image (255: a point of interest there has its subset on the specimen), for tools
+        # that take a mask image (VIC-3D's and MatchID's ROI import, workbench stereo --mask)
+        from labio.atomic import atomic_write_image
+
+        mask = poi_mask(dense["valid"], dense["x_px"], dense["y_px"], dataset.image_size_px, margin)
+        atomic_write_image(folder / "truth" / "roi_mask_left.png", np.where(mask, 255, 0).astype(np.uint8))
+        record["roi_mask"] = {"file": "truth/roi_mask_left.png", "pixels": int(mask.sum()), "margin_px": margin}
     else:
         w, h = dataset.image_size_px
         poly = np.array([[margin, margin], [w - 1 - margin, margin], [w - 1 - margin, h - 1 - margin],
@@ -305,9 +324,10 @@ def _export_into(dataset: Dataset, fmt: str, folder: Path, settings: ExportSetti
     atomic_write_text(folder / "truth" / "roi_polygon_px.csv",
                       "x_px,y_px\n" + "".join(f"{x:.0f},{y:.0f}\n" for x, y in poly))
     record["roi_polygon_px"] = poly.tolist()
+    record["roi_excluded_polygons_px"] = [h.tolist() for h in holes]
     record["truth_points"] = int(pt.x_px.size)
     if fmt == "dice":
-        for name, text in _dice_files(dataset, names, poly, settings).items():
+        for name, text in _dice_files(dataset, names, poly, settings, holes).items():
             atomic_write_text(folder / name, text)
     atomic_write_text(folder / "README.md", _readme(dataset, fmt, record))
     log(f"  truth: truth/truth_reference.npz (every {settings.truth_step_px} px), truth/points.csv "

@@ -36,6 +36,7 @@ class StateScore:
     error_uv_px: np.ndarray | None       # (N, 2), NaN where not scored
     error_U_um: np.ndarray | None        # (N, 3)
     metrics: dict
+    strain: object | None = None         # workbench.scoring.strain.StrainScore of a result with surface strain
 
 
 def rigid_fit(A: np.ndarray, B: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -83,8 +84,14 @@ def _summary(e: np.ndarray, prefix: str, unit: str, axes: str) -> dict:
     return out
 
 
-def score_state(dataset: Dataset, state: int, result: ToolResult, align: str = "none") -> StateScore:
-    """Score ``result`` (reference -> ``state``) against the truth of ``dataset``."""
+def score_state(dataset: Dataset, state: int, result: ToolResult, align: str = "none",
+                strain_window: dict | None = None) -> StateScore:
+    """Score ``result`` (reference -> ``state``) against the truth of ``dataset``.
+
+    A 3-D result with surface strain is scored against the exact strain and the strain seen through its window
+    (:mod:`workbench.scoring.strain`): ``strain_window`` (``{"window_points": k or None, "fit": ...}``) states the
+    window where the result does not.
+    """
     if align not in ALIGNMENTS:
         raise ValueError(f"--align {align!r}: choose one of {', '.join(ALIGNMENTS)}")
     if not 1 <= state < dataset.n_states:
@@ -92,7 +99,14 @@ def score_state(dataset: Dataset, state: int, result: ToolResult, align: str = "
                          f"(1 to {dataset.n_states - 1})")
     if result.has_3d and not dataset.stereo:
         raise ValueError(f"{result.source}: a 3-D result, but {dataset.folder.name} is a 2-D dataset")
-    truth = point_truth(dataset, result.x_px, result.y_px)
+    with_strain = result.surface_strain is not None
+    if with_strain and not dataset.stereo:
+        raise ValueError(f"{result.source}: a surface strain, but {dataset.folder.name} is a 2-D dataset")
+    window = strain_window or result.strain_window
+    if with_strain and window is None:
+        raise ValueError(f"{result.source}: the file holds strain but does not say over what window it was computed; "
+                         "give --strain-window K (grid points per side, or 'triangles') and --strain-fit")
+    truth = point_truth(dataset, result.x_px, result.y_px, strain=with_strain)
     on = truth.valid
     scored = on & result.valid
     placed = np.isfinite(result.x_px) & np.isfinite(result.y_px)
@@ -144,7 +158,15 @@ def score_state(dataset: Dataset, state: int, result: ToolResult, align: str = "
             ep = 1e3 * (Xa - truth.X_left_mm[0])
             ep[~scored] = np.nan
             metrics.update(_summary(ep, "position_", "um", "XYZ"))
-    return StateScore(state, dataset.labels[state], result.x_px, result.y_px, e2, e3, metrics)
+    strain = None
+    if with_strain:
+        from workbench.scoring.strain import score_strain
+
+        strain = score_strain(result.x_px, result.y_px, result.surface_strain, scored, truth.X_left_mm[0],
+                              truth.X_left_mm[state], truth.strain_left[state], window["window_points"],
+                              window.get("fit") or "linear", result.surface_strain_sigma)
+        metrics.update(strain.metrics)
+    return StateScore(state, dataset.labels[state], result.x_px, result.y_px, e2, e3, metrics, strain)
 
 
 def _sigma_coverage(error: np.ndarray, sigma: np.ndarray, names) -> dict:
