@@ -179,6 +179,48 @@ def test_specimen_through_export_stereo_and_score_clis(tmp_path, capsys):
         assert abs(state["strain_peak_e1_error_percent"]) < 10.0, state
     assert np.isnan(m["states"][2]["strain_peak_e1_error_percent"])       # the static repeat has no peak
 
+    # the score report a user would show: a line profile, a virtual extensometer and the user's mask (the exported
+    # ROI mask, cut to its left half); report.html is whole (every figure decodes)
+    import cv2
+
+    from workbench.reporting.html_report import check_html_report
+    from workbench.scoring.datasets import open_dataset, point_truth
+
+    mask = cv2.imread(str(ex / "truth" / "roi_mask_left.png"), cv2.IMREAD_GRAYSCALE)
+    half = mask.copy()
+    half[:, half.shape[1] // 2:] = 0
+    cv2.imwrite(str(tmp_path / "half.png"), half)
+    ds = open_dataset(data)
+    h, w = mask.shape
+    ends = (w * 0.25, h * 0.5, w * 0.45, h * 0.5)
+    sc4 = tmp_path / "sc4"
+    assert main(["score", str(data), *map(str, results), "--line", f"{w * 0.1:g},{h / 2:g},{w * 0.45:g},{h / 2:g}",
+                 "--extensometer", ",".join(f"{v:g}" for v in ends), "--mask", str(tmp_path / "half.png"),
+                 "--out", str(sc4)]) == 0
+    m4 = _json.loads((sc4 / "metrics.json").read_text())
+    rows = [r.split(",") for r in results[0].read_text().splitlines()[1:]]
+    x, y = np.array([float(r[0]) for r in rows]), np.array([float(r[1]) for r in rows])
+    outside = int(np.sum(half[np.rint(y).astype(int), np.rint(x).astype(int)] == 0))
+    assert m4["states"][0]["outside_mask_points"] == outside > 0
+    assert m4["states"][0]["valid_points"] < m["states"][0]["valid_points"]
+    # the extensometer's truth is the linear field's stretch of the chord between its two material points: |F d| / |d|
+    doc = _json.loads((data / "truth.json").read_text())
+    R = np.array(doc["R_world_from_specimen"])
+    X0 = point_truth(ds, [ends[0], ends[2]], [ends[1], ends[3]]).X_left_mm[0]
+    d = R.T @ (X0[1] - X0[0])
+    for row, k in zip(m4["extensometers"][0]["states"], (1, 2)):
+        stretch = np.linalg.norm((np.eye(3) + A[k]) @ d) / np.linalg.norm(d) - 1.0
+        assert row["true_strain_microstrain"] == pytest.approx(1e6 * stretch, abs=1e-3)
+        assert abs(row["error_microstrain"]) < 200.0, row          # ~2 µm noise at the ends of a ~9 mm gauge
+    assert (sc4 / "profiles.csv").is_file() and (sc4 / "profile_L1.png").is_file()
+    assert len(check_html_report(sc4 / "report.html")["figures"]) >= 5
+    # a mask of another size is refused naming both sizes, and nothing is written
+    cv2.imwrite(str(tmp_path / "small.png"), half[:-2])
+    assert main(["score", str(data), str(results[0]), "--mask", str(tmp_path / "small.png"),
+                 "--out", str(tmp_path / "sc5")]) == 2
+    assert f"is {w} x {h - 2} px but the dataset's images are {w} x {h} px" in capsys.readouterr().err
+    assert not (tmp_path / "sc5").exists()
+
     # a wrong --state beside the images' own state is refused naming both
     assert main(["score", str(data), str(results[0]), "--state", "2", "--out", str(tmp_path / "sc2")]) == 2
     err = capsys.readouterr().err

@@ -3,7 +3,9 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from workbench.commands.options import positive_int_arg
+import numpy as np
+
+from workbench.commands.options import positive_int_arg, strain_window_arg
 
 
 def add_parser(sub) -> None:
@@ -32,6 +34,20 @@ def add_parser(sub) -> None:
                                                    "first: 'cmd {ref} {def} {out}' or module:function")
     sc.add_argument("--subset", type=positive_int_arg, default=33, help="subset size passed to --engine, px")
     sc.add_argument("--step", type=positive_int_arg, default=8, help="step passed to --engine, px")
+    sc.add_argument("--strain-window", type=strain_window_arg, default=None, metavar="K|triangles",
+                    help="the strain window the tool used, in grid points per side (or 'triangles'): the truth is "
+                         "put through the same window; default: what the result's manifest says (workbench stereo)")
+    sc.add_argument("--strain-fit", choices=("linear", "quadratic"), default="linear",
+                    help="the order of the tool's strain-window fit (with --strain-window), default linear")
+    sc.add_argument("--line", action="append", default=[], metavar="X0,Y0,X1,Y1",
+                    help="a line of the left reference image (px) to profile the strain along, against the truth "
+                         "(e.g. through a hole or a notch root); may be given several times")
+    sc.add_argument("--extensometer", action="append", default=[], metavar="X0,Y0,X1,Y1",
+                    help="a virtual extensometer between two points of the left reference image (px): the change of "
+                         "their distance measured vs the truth, per state; may be given several times")
+    sc.add_argument("--mask", type=Path, default=None,
+                    help="image of the left reference's size: only points whose reference pixel is non-zero in it are "
+                         "scored (your ROI)")
     sc.add_argument("--store", type=Path, default=None, help="render store (default $WORKBENCH_STORE)")
     sc.add_argument("--out", type=Path, required=True)
 
@@ -79,13 +95,49 @@ def _states_of(dataset, paths: list[Path], state: int | None) -> list[tuple[int,
     return sorted(out)
 
 
+def _user_mask(path: Path, dataset) -> np.ndarray:
+    """The user's mask as a bool image of the dataset's left reference size; refused naming both sizes."""
+    from workbench.commands.options import read_image_for, size_text
+
+    image = read_image_for(path, "--mask")
+    w, h = dataset.image_size_px
+    if image.shape[:2] != (h, w):
+        raise ValueError(f"--mask {path} is {size_text(image)} but the dataset's images are {w} x {h} px")
+    return image != 0 if image.ndim == 2 else np.any(image != 0, axis=-1)
+
+
+def _inside_mask(result, mask: np.ndarray):
+    """The result restricted to the points whose reference pixel (nearest) is non-zero in ``mask``, and how many
+    points were left out."""
+    from dataclasses import replace
+
+    h, w = mask.shape
+    col = np.rint(np.nan_to_num(result.x_px, nan=-1.0)).astype(np.int64)
+    row = np.rint(np.nan_to_num(result.y_px, nan=-1.0)).astype(np.int64)
+    inside = (col >= 0) & (row >= 0) & (col < w) & (row < h)
+    inside[inside] = mask[row[inside], col[inside]]
+    fields = {name: getattr(result, name)[inside] for name in
+              ("x_px", "y_px", "valid", "u_px", "v_px", "X_mm", "U_mm", "strain", "sigma_uv_px", "sigma_U_mm",
+               "surface_strain", "surface_strain_sigma") if getattr(result, name) is not None}
+    return replace(result, **fields), int((~inside).sum())
+
+
 def score_command(args) -> int:
-    from workbench.scoring.datasets import open_dataset, subset_roi_xyxy_px
+    from workbench.scoring.datasets import open_dataset, point_truth, subset_roi_xyxy_px
     from workbench.engines import parse_engine, run_engine
     from workbench.results import read_result
-    from workbench.scoring.metrics import score_state, write_score_report
+    from workbench.scoring.metrics import score_state
+    from workbench.scoring.probes import extensometer, parse_segment
+    from workbench.scoring.report import write_score_report
 
+    lines = [parse_segment(t, "--line") for t in args.line]
+    gauges = [parse_segment(t, "--extensometer") for t in args.extensometer]
+    window = None
+    if args.strain_window is not None:
+        window = {"window_points": None if args.strain_window == "triangles" else args.strain_window,
+                  "fit": args.strain_fit}
     dataset = open_dataset(args.dataset, args.store)
+    mask = _user_mask(args.mask, dataset) if args.mask is not None else None
     notes = []
     fmt = args.format
     paths = list(args.results)
@@ -108,10 +160,26 @@ def score_command(args) -> int:
         raise ValueError("no result files and no --engine")
     fmt = fmt or "native"
     scores, tool = [], None
+    extensometers = {g: [] for g in gauges}
+    gauge_truth = {g: point_truth(dataset, [g[0], g[2]], [g[1], g[3]]) for g in gauges}
+    for g, t in gauge_truth.items():
+        if not t.valid.all():
+            raise ValueError(f"--extensometer {','.join(f'{v:g}' for v in g)}: an end does not see the specimen in the "
+                             "left reference image")
     for state, path in _states_of(dataset, paths, args.state):
         result = read_result(path, fmt, args.columns, args.pixel_origin, args.length_unit)
         tool = tool or result.tool
-        s = score_state(dataset, state, result, args.align)
+        if mask is not None:
+            result, outside = _inside_mask(result, mask)
+            if not result.x_px.size:
+                raise ValueError(f"{path}: no point of the result lies inside --mask {args.mask}")
+        s = score_state(dataset, state, result, args.align, window)
+        if mask is not None:
+            s.metrics["outside_mask_points"] = outside
+        for g in gauges:
+            if result.X_mm is None:
+                raise ValueError(f"--extensometer needs 3-D positions; {path} has none")
+            extensometers[g].append(extensometer(result, gauge_truth[g], state, g))
         scores.append(s)
         m = s.metrics
         line = f"state {state} ({m['label']}): {m['valid_points']}/{m['truth_points']} points scored"
@@ -130,9 +198,16 @@ def score_command(args) -> int:
             print(f"  warning: {m['frame_hint']}")
         if m["outside_points"]:
             line += f"; {m['outside_points']} points off the specimen left out"
+        if "strain_peak_e1_windowed_microstrain" in m:
+            line += (f"; strain e1 error RMS {m['strain_rms_e1_vs_windowed_microstrain']:.3g} µε vs the windowed truth, "
+                     f"peak {m['strain_peak_e1_measured_microstrain']:.0f} µε measured / "
+                     f"{m['strain_peak_e1_windowed_microstrain']:.0f} windowed / "
+                     f"{m.get('strain_peak_e1_exact_microstrain', float('nan')):.0f} exact")
         print(line)
-    doc = write_score_report(args.out, dataset, scores, tool or fmt, paths, notes)
-    print(f"wrote {args.out / 'report.md'} and {args.out / 'metrics.json'}")
+    doc = write_score_report(args.out, dataset, scores, tool or fmt, paths, notes, lines=lines,
+                             extensometers=extensometers, mask=None if args.mask is None else str(args.mask),
+                             progress=print)
+    print(f"wrote {args.out / 'report.html'}, report.md and metrics.json")
     return 0 if doc["states"] else 1
 
 

@@ -12,10 +12,7 @@ reported), or taken as it is (``align="none"``, the default, for tools that stat
 """
 from __future__ import annotations
 
-import io
-import json
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 
@@ -197,87 +194,3 @@ def _frame_hint(result: ToolResult, truth, state: int, scored: np.ndarray, rms_u
                 f"{np.degrees(np.arccos(np.clip((np.trace(R) - 1) / 2, -1, 1))):.3g} deg rotation) cuts the error "
                 f"from {rms_um:.3g} to {aligned:.3g} µm RMS; score with --align rigid if the tool uses another frame")
     return None
-
-
-def _figure(score: StateScore, tool: str):
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    panels = []
-    if score.error_uv_px is not None:
-        panels += [("error of u (px)", score.error_uv_px[:, 0]), ("error of v (px)", score.error_uv_px[:, 1])]
-    if score.error_U_um is not None:
-        panels += [("error of W (µm)", score.error_U_um[:, 2]),
-                   ("error of displacement, norm (µm)", np.linalg.norm(score.error_U_um, axis=1))]
-    fig, axes = plt.subplots(1, len(panels) + 1, figsize=(4.2 * (len(panels) + 1), 3.6))
-    for ax, (title, values) in zip(axes, panels):
-        ok = np.isfinite(values)
-        lim = float(np.nanpercentile(np.abs(values[ok]), 99)) if ok.any() else 1.0
-        sc = ax.scatter(score.x_px[ok], score.y_px[ok], c=values[ok], s=6, cmap="coolwarm", vmin=-lim, vmax=lim)
-        ax.invert_yaxis()
-        ax.set_aspect("equal")
-        ax.set_title(title, fontsize=9)
-        ax.set_xlabel("x (px)")
-        fig.colorbar(sc, ax=ax, shrink=0.8)
-    hist_ax = axes[-1]
-    for title, values in panels:
-        ok = np.isfinite(values)
-        if ok.any():
-            hist_ax.hist(values[ok], bins=60, histtype="step", label=title.split(" (")[0])
-    hist_ax.set_title("histogram of the errors", fontsize=9)
-    hist_ax.legend(fontsize=7)
-    fig.suptitle(f"{tool}: {score.label} (state {score.state})", fontsize=10)
-    fig.tight_layout()
-    return fig
-
-
-def write_score_report(out: Path, dataset: Dataset, scores: list[StateScore], tool: str, sources: list[Path],
-                       notes: list[str] | None = None) -> dict:
-    """metrics.json, report.md, errors.csv and one PNG of maps + histogram per state, into ``out``."""
-    import matplotlib.pyplot as plt
-
-    from labio.atomic import atomic_write_bytes, atomic_write_text
-
-    out.mkdir(parents=True, exist_ok=True)
-    doc = {"dataset": str(dataset.folder), "kind": dataset.kind, "tool": tool, "results": [str(s) for s in sources],
-           "notes": notes or [], "states": [s.metrics for s in scores]}
-    atomic_write_text(out / "metrics.json", json.dumps(doc, indent=1))
-    keys = [k for k in ("not_measured_points", "valid_fraction", "bias_u_px", "bias_v_px", "std_u_px", "std_v_px", "rms_px", "max_px",
-                        "bias_U_um", "bias_V_um", "bias_W_um", "rms_um", "max_um", "position_rms_um",
-                        "sigma_coverage_95_u", "sigma_coverage_95_v", "sigma_coverage_95_U", "sigma_coverage_95_V",
-                        "sigma_coverage_95_W")
-            if any(k in s.metrics for s in scores)]
-    fmt = lambda v: f"{v:.4g}" if isinstance(v, float) else str(v)  # noqa: E731
-    lines = [f"# {tool} scored against the truth of `{dataset.folder.name}` ({dataset.kind})", "",
-             f"Result files: {', '.join(f'`{s}`' for s in sources)}.", "",
-             "Truth evaluated exactly at each reported reference position; px as OpenCV (integer pixel centres); "
-             "3-D errors in the left camera frame, µm. Points the tool reports as NaN or failed on the specimen "
-             "are not measured (`not_measured_points`), left out of the errors and counted in `valid_fraction`. "
-             "Where the result carries its own per-point sigma, `sigma_coverage_95_*` is the fraction of its errors "
-             "inside +-1.96 sigma (the total error: a bias the sigma does not claim to cover lowers it).", "",
-             "| state | label | points | " + " | ".join(keys) + " |", "|" + "---|" * (3 + len(keys))]
-    for s in scores:
-        lines.append(f"| {s.state} | {s.label} | {s.metrics['valid_points']}/{s.metrics['truth_points']} | "
-                     + " | ".join(fmt(s.metrics.get(k, "")) for k in keys) + " |")
-    for n in notes or []:
-        lines.append(f"\n- {n}")
-    lines.append("")
-    for s in scores:
-        fig = _figure(s, tool)
-        buffer = io.BytesIO()
-        fig.savefig(buffer, format="png", dpi=110)
-        plt.close(fig)
-        name = f"errors_state_{s.state:02d}.png"
-        atomic_write_bytes(out / name, buffer.getvalue())
-        lines.append(f"![{s.label}]({name})")
-    atomic_write_text(out / "report.md", "\n".join(lines) + "\n")
-    rows = ["state,x_px,y_px,error_u_px,error_v_px,error_U_um,error_V_um,error_W_um"]
-    for s in scores:
-        e2 = s.error_uv_px if s.error_uv_px is not None else np.full((s.x_px.size, 2), np.nan)
-        e3 = s.error_U_um if s.error_U_um is not None else np.full((s.x_px.size, 3), np.nan)
-        for i in range(s.x_px.size):
-            rows.append(",".join([str(s.state), f"{s.x_px[i]:g}", f"{s.y_px[i]:g}",
-                                  *("nan" if not np.isfinite(v) else f"{v:.6g}" for v in (*e2[i], *e3[i]))]))
-    atomic_write_text(out / "errors.csv", "\n".join(rows) + "\n")
-    return doc
