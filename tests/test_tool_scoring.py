@@ -276,7 +276,9 @@ def test_dice_export_is_a_complete_dice_input(pair, tmp_path):
 
 def test_strain_columns_are_scored_against_the_exact_strain(pair, tmp_path):
     """A translation has zero strain: strain columns of 100 µε in exx (and 0 elsewhere) score a bias of exactly
-    100 µε in xx and 0 in yy, xy."""
+    100 µε in xx and 0 in yy, xy; the same columns stated in µε score the same; unstated, they are refused."""
+    from workbench.readers.conventions import StrainConvention, UnstatedStrainError
+
     x, y = _grid(pair, 16)
     pt = point_truth(pair, x, y)
     path = tmp_path / "strain.csv"
@@ -284,8 +286,16 @@ def test_strain_columns_are_scored_against_the_exact_strain(pair, tmp_path):
         f.write("x,y,u,v,exx,eyy,exy\n")
         for i in range(x.size):
             f.write(f"{x[i]:g},{y[i]:g},{pt.uv_left_px[1, i, 0]:.9g},{pt.uv_left_px[1, i, 1]:.9g},1e-4,0,0\n")
-    m = score_state(pair, 1, read_result(path, "csv", "x=x,y=y,u=u,v=v,exx=exx,eyy=eyy,exy=exy")).metrics
+    mapping = "x=x,y=y,u=u,v=v,exx=exx,eyy=eyy,exy=exy"
+    with pytest.raises(UnstatedStrainError, match="maps strain columns, but not their convention"):
+        read_result(path, "csv", mapping)
+    m = score_state(pair, 1, read_result(path, "csv", mapping, strain_convention=StrainConvention())).metrics
     assert m["strain_bias_xx_microstrain"] == pytest.approx(100.0, abs=1e-6)
+    micro = tmp_path / "micro.csv"
+    micro.write_text(path.read_text().replace(",1e-4,0,0", ",100,0,0"))
+    m2 = score_state(pair, 1, read_result(micro, "csv", mapping, strain_convention=StrainConvention(
+        "green-lagrange", "tensor", "microstrain"))).metrics
+    assert m2["strain_bias_xx_microstrain"] == pytest.approx(100.0, abs=1e-6)
     assert m["strain_rms_yy_microstrain"] == pytest.approx(0.0, abs=1e-6)
     assert m["strain_rms_xy_microstrain"] == pytest.approx(0.0, abs=1e-6)
 

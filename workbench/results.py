@@ -9,7 +9,12 @@ Readers (``READERS``):
   STATUS_FLAG, …``; stereo runs add ``MODEL_COORDINATES_X/Y/Z`` and ``MODEL_DISPLACEMENT_X/Y/Z`` (mm, in
   DICe's model frame: camera 0 unless a best-fit plane was asked for). A point DICe could not correlate has
   ``SIGMA = -1``;
+* ``vic3d``: VIC-3D's / VIC-2D's CSV export (:mod:`workbench.readers.vic3d`);
+* ``matchid``: MatchID's CSV export (:mod:`workbench.readers.matchid`);
+* ``opencorr``: OpenCorr's 2-D or stereo result table (:mod:`workbench.readers.opencorr`);
 * ``pyvale``: pyvale's 2-D DIC CSV (:mod:`workbench.peers.pyvale_engine`);
+* ``auto``: the layout recognised from the header (every format above but ``csv``); a header that matches none
+  is refused naming its columns and what each layout it could be lacks;
 * ``csv``: any CSV by a column mapping ``x=..,y=..,u=..,v=..`` (and ``X,Y,Z,U,V,W`` for 3-D, ``valid`` for a
   0/1 or true/false column, ``exx, eyy, exy`` for 2-D Green-Lagrange strain with tensor shear), with the tool's
   pixel origin and length unit stated.
@@ -28,7 +33,7 @@ from pathlib import Path
 
 import numpy as np
 
-READERS = ("native", "dice", "pyvale", "csv")
+READERS = ("auto", "native", "dice", "vic3d", "matchid", "opencorr", "pyvale", "csv")
 #: Pixel-coordinate conventions of tools: what to add to their x, y to get OpenCV's (integer pixel centres).
 PIXEL_ORIGINS = {"center": 0.0, "corner": -0.5, "one-based": -1.0}
 #: Length units of 3-D columns, in mm.
@@ -94,8 +99,10 @@ class ToolResult:
         return self.U_mm is not None
 
 
-def _rows(path: Path, skip_prefixes=("#", "*")) -> tuple[list[str], list[list[str]]]:
-    """Header and rows of a CSV (comma, semicolon or whitespace separated), skipping comment/banner lines."""
+def read_table(path: Path, skip_prefixes=("#", "*")) -> tuple[list[str], list[list[str]]]:
+    """Header and rows of a CSV (comma, semicolon or whitespace separated; quoted names and spaces after the
+    delimiter as VIC-3D writes them; a delimiter after the last field as OpenCorr writes it), skipping comment and
+    banner lines."""
     try:
         text = path.read_text(errors="strict")
     except UnicodeDecodeError:
@@ -108,8 +115,10 @@ def _rows(path: Path, skip_prefixes=("#", "*")) -> tuple[list[str], list[list[st
     if delimiter is None:
         table = [ln.split() for ln in lines]
     else:
-        table = [[c.strip() for c in row] for row in csv.reader(lines, delimiter=delimiter)]
+        table = [[c.strip() for c in row] for row in csv.reader(lines, delimiter=delimiter, skipinitialspace=True)]
     header, rows = table[0], table[1:]
+    if len(header) > 1 and header[-1] == "" and all(r and r[-1] == "" for r in rows):
+        header, rows = header[:-1], [r[:-1] for r in rows]          # a trailing delimiter on every line
     bad = [i + 2 for i, r in enumerate(rows) if len(r) != len(header)]
     if bad:
         raise ResultFormatError(f"{path}: line {bad[0]} has a different number of fields than the header "
@@ -117,7 +126,8 @@ def _rows(path: Path, skip_prefixes=("#", "*")) -> tuple[list[str], list[list[st
     return header, rows
 
 
-def _column(path: Path, header: list[str], rows, name: str, *, what: str | None = None) -> np.ndarray:
+def table_column(path: Path, header: list[str], rows, name: str, *, what: str | None = None) -> np.ndarray:
+    """Column ``name`` of a :func:`read_table` table as floats; ResultFormatError naming the file, column and row."""
     if name not in header:
         raise ResultFormatError(f"{path}: no column {name!r}{f' ({what})' if what else ''}; the columns are "
                                 f"{', '.join(header)}")
@@ -133,8 +143,8 @@ def _column(path: Path, header: list[str], rows, name: str, *, what: str | None 
 
 def read_native(path: Path) -> ToolResult:
     """This project's 2-D (``workbench dic``) or stereo state CSV."""
-    header, rows = _rows(path)
-    col = lambda n: _column(path, header, rows, n)  # noqa: E731
+    header, rows = read_table(path)
+    col = lambda n: table_column(path, header, rows, n)  # noqa: E731
     names = [r[header.index("status_name")] for r in rows] if "status_name" in header else None
     x, y = col("x"), col("y")
     if "U" in header:
@@ -183,9 +193,9 @@ def _native_strain_window(path: Path) -> dict | None:
 
 def read_dice(path: Path) -> ToolResult:
     """A DICe solution file (2-D, or stereo with MODEL_* columns)."""
-    header, rows = _rows(path)
+    header, rows = read_table(path)
     header = [h.upper() for h in header]
-    col = lambda n, what=None: _column(path, header, rows, n, what=what)  # noqa: E731
+    col = lambda n, what=None: table_column(path, header, rows, n, what=what)  # noqa: E731
     x, y = col("COORDINATE_X"), col("COORDINATE_Y")
     u, v = col("DISPLACEMENT_X"), col("DISPLACEMENT_Y")
     valid = np.isfinite(u) & np.isfinite(v)
@@ -242,14 +252,14 @@ def parse_columns(text: str) -> dict[str, str]:
 
 
 def read_mapped_csv(path: Path, columns: dict[str, str], pixel_origin: str = "center",
-                    length_unit: str = "mm") -> ToolResult:
+                    length_unit: str = "mm", strain_convention=None, ignore_strain: bool = False) -> ToolResult:
     """Any CSV by a column mapping (:func:`parse_columns`), converted from the stated conventions."""
     if pixel_origin not in PIXEL_ORIGINS:
         raise ValueError(f"--pixel-origin {pixel_origin!r}: choose one of {', '.join(PIXEL_ORIGINS)}")
     if length_unit not in LENGTH_UNITS_MM:
         raise ValueError(f"--length-unit {length_unit!r}: choose one of {', '.join(LENGTH_UNITS_MM)}")
-    header, rows = _rows(path)
-    col = lambda k: _column(path, header, rows, columns[k], what=f"mapped to {k}")  # noqa: E731
+    header, rows = read_table(path)
+    col = lambda k: table_column(path, header, rows, columns[k], what=f"mapped to {k}")  # noqa: E731
     shift = PIXEL_ORIGINS[pixel_origin]
     x, y = col("x") + shift, col("y") + shift
     valid = np.ones(x.size, bool)
@@ -274,24 +284,33 @@ def read_mapped_csv(path: Path, columns: dict[str, str], pixel_origin: str = "ce
         if "X" in columns:
             X = np.column_stack([col(k) for k in "XYZ"]) * scale
     strain = None
-    if any(k in columns for k in ("exx", "eyy", "exy")):
+    if any(k in columns for k in ("exx", "eyy", "exy")) and not ignore_strain:
+        from workbench.readers.conventions import UnstatedStrainError, to_green_lagrange
+
         if not all(k in columns for k in ("exx", "eyy", "exy")):
             raise ValueError("--columns: name all of exx, eyy, exy or none")
-        strain = np.column_stack([col(k) for k in ("exx", "eyy", "exy")])
+        if strain_convention is None:
+            raise UnstatedStrainError(f"{path}: --columns maps strain columns, but not their convention: give "
+                                      "--strain-measure, --strain-shear and --strain-unit, or --ignore-strain")
+        strain = to_green_lagrange(*(col(k) for k in ("exx", "eyy", "exy")), strain_convention)
     nanify = lambda a: None if a is None else np.where(valid if a.ndim == 1 else valid[:, None], a, np.nan)  # noqa: E731
     return ToolResult(path, "csv", x, y, valid, nanify(u), nanify(v), nanify(X), nanify(U), frame="as the tool states",
                       strain=nanify(strain))
 
 
 def read_result(path: str | Path, fmt: str = "native", columns: str | None = None, pixel_origin: str = "center",
-                length_unit: str = "mm") -> ToolResult:
+                length_unit: str = "mm", strain_convention=None, ignore_strain: bool = False) -> ToolResult:
     """Read one result file in ``fmt`` (one of :data:`READERS`).
+
+    ``strain_convention`` (:class:`workbench.readers.conventions.StrainConvention`) states what a file's strain
+    columns are where the file does not (a file with strain and no stated convention is refused, unless
+    ``ignore_strain``); ``pixel_origin``/``length_unit`` the tool's pixel convention and length unit.
 
     Rows whose displacement is NaN (or that the tool flags) are failed points: ``valid`` is False there. A file
     in which no row holds a finite position and displacement is refused (:class:`ResultFormatError`): there is
     nothing to score, and a tool that failed everywhere should not look like one that measured zero points.
     """
-    result = _read_any(path, fmt, columns, pixel_origin, length_unit)
+    result = _read_any(path, fmt, columns, pixel_origin, length_unit, strain_convention, ignore_strain)
     usable = result.valid & np.isfinite(result.x_px) & np.isfinite(result.y_px)
     if not usable.any():
         what = "u, v" if result.has_2d else "U, V, W"
@@ -300,7 +319,60 @@ def read_result(path: str | Path, fmt: str = "native", columns: str | None = Non
     return result
 
 
-def _read_any(path, fmt: str, columns: str | None, pixel_origin: str, length_unit: str) -> ToolResult:
+#: What each layout ``auto`` recognises must have in its header (for the message naming what a file lacks).
+LAYOUT_COLUMNS = {"native": ("x", "y", "u, v or U, V, W", "status_name"),
+                  "dice": ("COORDINATE_X", "COORDINATE_Y", "DISPLACEMENT_X", "DISPLACEMENT_Y"),
+                  "vic3d": ("x", "y", "sigma", "u, v or U, V, W"),
+                  "matchid": ("Coordinates.Image X [Pixel] or x_pic", "Coordinates.Image Y [Pixel] or y_pic",
+                              "disp.* displacements"),
+                  "opencorr": ("x", "y", "u", "v", "ZNCC (or r1r2 ZNCC, r1t1 ZNCC, r1t2 ZNCC, tar_x..z)"),
+                  "pyvale": ("subset_x", "subset_y", "disp_u", "disp_v", "converged")}
+
+
+def _recognised(header: list[str]) -> list[str]:
+    from workbench.peers.pyvale_engine import REQUIRED_COLUMNS as PYVALE
+    from workbench.readers import matchid, opencorr, vic3d
+
+    upper = [h.upper() for h in header]
+    found = []
+    if "status_name" in header and "x" in header and ("u" in header or "U" in header):
+        found.append("native")
+    if all(c in upper for c in ("COORDINATE_X", "COORDINATE_Y", "DISPLACEMENT_X", "DISPLACEMENT_Y")):
+        found.append("dice")
+    if vic3d.recognises(header):
+        found.append("vic3d")
+    if matchid.recognises(header):
+        found.append("matchid")
+    if opencorr.recognises(header):
+        found.append("opencorr")
+    if all(c in header for c in PYVALE):
+        found.append("pyvale")
+    return found
+
+
+def detect_format(path: Path) -> str:
+    """The layout of a result file, recognised from its header (:data:`LAYOUT_COLUMNS`).
+
+    Raises
+    ------
+    ResultFormatError
+        No layout or more than one matches: the message names the file's columns and, for each layout, what it
+        lacks; ``--format csv --columns ...`` reads any other table.
+    """
+    header, _ = read_table(path)
+    found = _recognised(header)
+    if len(found) == 1:
+        return found[0]
+    if len(found) > 1:
+        raise ResultFormatError(f"{path}: its columns fit several layouts ({', '.join(found)}); give --format")
+    lacks = "; ".join(f"{name}: {', '.join(cols)}" for name, cols in LAYOUT_COLUMNS.items())
+    raise ResultFormatError(f"{path}: its columns ({', '.join(header[:20])}{' ...' if len(header) > 20 else ''}) match "
+                            f"no known layout. The layouts need — {lacks}. Give --format with --columns "
+                            "x=..,y=..,u=..,v=.. (--format csv) for any other table")
+
+
+def _read_any(path, fmt: str, columns: str | None, pixel_origin: str, length_unit: str, strain_convention=None,
+              ignore_strain: bool = False) -> ToolResult:
     path = Path(path)
     if fmt not in READERS:
         raise ValueError(f"--format {fmt!r}: choose one of {', '.join(READERS)}")
@@ -308,16 +380,45 @@ def _read_any(path, fmt: str, columns: str | None, pixel_origin: str, length_uni
         raise ValueError(f"result file not found: {path}")
     if fmt != "csv" and columns:
         raise ValueError(f"--columns is for --format csv, not {fmt}")
+    if pixel_origin not in PIXEL_ORIGINS:
+        raise ValueError(f"--pixel-origin {pixel_origin!r}: choose one of {', '.join(PIXEL_ORIGINS)}")
+    if length_unit not in LENGTH_UNITS_MM:
+        raise ValueError(f"--length-unit {length_unit!r}: choose one of {', '.join(LENGTH_UNITS_MM)}")
+    if fmt == "auto":
+        fmt = detect_format(path)
     if fmt == "csv":
         if not columns:
             raise ValueError("--format csv needs --columns x=..,y=..,u=..,v=.. (or U=..,V=..,W=..)")
-        return read_mapped_csv(path, parse_columns(columns), pixel_origin, length_unit)
+        return read_mapped_csv(path, parse_columns(columns), pixel_origin, length_unit, strain_convention,
+                               ignore_strain)
+    options = dict(strain_convention=strain_convention, ignore_strain=ignore_strain,
+                   pixel_shift=PIXEL_ORIGINS[pixel_origin])
+    if fmt == "vic3d":
+        from workbench.readers.vic3d import read_vic
+        return read_vic(path, length_scale_mm=LENGTH_UNITS_MM[length_unit], **options)
+    if fmt == "matchid":
+        from workbench.readers.matchid import read_matchid
+        return read_matchid(path, **options)
+    if fmt == "opencorr":
+        from workbench.readers.opencorr import read_opencorr
+        return read_opencorr(path, length_scale_mm=LENGTH_UNITS_MM[length_unit], **options)
     return {"native": read_native, "dice": read_dice, "pyvale": read_pyvale}[fmt](path)
 
 
-def state_of(path: Path) -> int | None:
-    """The state number a file name ends with (``DICe_solution_03.txt`` -> 3), or None."""
-    m = re.search(r"(\d+)\D*$", path.stem)
+#: Formats whose result files are named after the image pair with the camera's index last: VIC-3D's
+#: ``dataset-0002_0.csv``, MatchID's ``Image_0007_0.tiff.csv`` (state 2 and 7, camera 0).
+CAMERA_SUFFIXED = ("vic3d", "matchid")
+
+
+def state_of(path: Path, fmt: str | None = None) -> int | None:
+    """The state number a file name ends with (``DICe_solution_03.txt`` -> 3), or None; for the formats of
+    :data:`CAMERA_SUFFIXED` the number before the camera suffix (``dataset-0002_0.csv`` -> 2)."""
+    name = re.sub(r"(\.(tiff?|png|bmp|jpe?g))+$", "", Path(path).stem, flags=re.IGNORECASE)
+    if fmt in CAMERA_SUFFIXED:
+        m = re.search(r"(\d+)_\d\D*$", name)
+        if m:
+            return int(m.group(1))
+    m = re.search(r"(\d+)\D*$", name)
     return int(m.group(1)) if m else None
 
 

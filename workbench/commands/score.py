@@ -10,6 +10,7 @@ from workbench.commands.options import positive_int_arg, strain_window_arg
 
 def add_parser(sub) -> None:
     """The ``score`` subcommand."""
+    from workbench.readers.conventions import MEASURES, SHEARS, UNITS
     from workbench.results import LENGTH_UNITS_MM, PIXEL_ORIGINS, READERS
     from workbench.scoring.metrics import ALIGNMENTS
 
@@ -19,7 +20,7 @@ def add_parser(sub) -> None:
                          "result is scored against the state of the images it measured (its manifest.json says which); "
                          "another file's state is the number its name ends with (0 = the reference), or --state")
     sc.add_argument("--format", choices=READERS, default=None,
-                    help="result file format (default: the engine's, else native)")
+                    help="result file format (default: the engine's, else auto: recognised from the header)")
     sc.add_argument("--columns", default=None, help="for --format csv: x=COL,y=COL,u=COL,v=COL[,X=..,Y=..,Z=..,"
                                                     "U=..,V=..,W=..,valid=COL]")
     sc.add_argument("--pixel-origin", choices=tuple(PIXEL_ORIGINS), default="center",
@@ -34,6 +35,14 @@ def add_parser(sub) -> None:
                                                    "first: 'cmd {ref} {def} {out}' or module:function")
     sc.add_argument("--subset", type=positive_int_arg, default=33, help="subset size passed to --engine, px")
     sc.add_argument("--step", type=positive_int_arg, default=8, help="step passed to --engine, px")
+    sc.add_argument("--strain-measure", choices=MEASURES, default=None,
+                    help="what the file's strain columns are, where the file does not say (VIC-3D, MatchID, "
+                         "OpenCorr, csv): with --strain-shear and --strain-unit; converted to Green-Lagrange")
+    sc.add_argument("--strain-shear", choices=SHEARS, default=None,
+                    help="the xy strain column: the tensor component or the engineering shear (twice it)")
+    sc.add_argument("--strain-unit", choices=tuple(UNITS), default=None, help="unit of the strain columns")
+    sc.add_argument("--ignore-strain", action="store_true",
+                    help="score the displacements only, leaving a file's strain columns unread")
     sc.add_argument("--strain-window", type=strain_window_arg, default=None, metavar="K|triangles",
                     help="the strain window the tool used, in grid points per side (or 'triangles'): the truth is "
                          "put through the same window; default: what the result's manifest says (workbench stereo)")
@@ -53,10 +62,11 @@ def add_parser(sub) -> None:
 
 
 
-def _states_of(dataset, paths: list[Path], state: int | None) -> list[tuple[int, Path]]:
+def _states_of(dataset, paths: list[Path], state: int | None, fmt: str = "auto") -> list[tuple[int, Path]]:
     """The dataset state of each result file: the state of the images the file says it measured (a ``workbench
     stereo`` result, whatever its name), else ``--state``, else the number its name ends with (state 0 is the
-    reference in every file of this project: ``state_001.csv`` is the first deformed state)."""
+    reference in every file of this project: ``state_001.csv`` is the first deformed state; VIC-3D's and MatchID's
+    files end with the camera's index after it: ``dataset-0002_0.csv`` is state 2)."""
     from workbench.results import measured_images, state_of
     from workbench.scoring.datasets import state_of_images
 
@@ -77,7 +87,14 @@ def _states_of(dataset, paths: list[Path], state: int | None) -> list[tuple[int,
         elif len(paths) == 1 and dataset.n_states == 2:
             k, how = 1, "the dataset's one deformed state"
         else:
-            k = state_of(p)
+            layout = fmt
+            if fmt == "auto":
+                from workbench.results import detect_format
+                try:
+                    layout = detect_format(p)
+                except ValueError:
+                    layout = None               # read_result says what is wrong with it, naming the file
+            k = state_of(p, layout)
             if k is None:
                 raise ValueError(f"{p}: the file name ends with no state number; give --state")
             how = "the number its name ends with"
@@ -130,6 +147,9 @@ def score_command(args) -> int:
     from workbench.scoring.probes import extensometer, parse_segment
     from workbench.scoring.report import write_score_report
 
+    from workbench.readers.conventions import convention_from_options
+
+    convention = convention_from_options(args.strain_measure, args.strain_shear, args.strain_unit)
     lines = [parse_segment(t, "--line") for t in args.line]
     gauges = [parse_segment(t, "--extensometer") for t in args.extensometer]
     window = None
@@ -158,7 +178,7 @@ def score_command(args) -> int:
                      "images (2-D)")
     if not paths:
         raise ValueError("no result files and no --engine")
-    fmt = fmt or "native"
+    fmt = fmt or "auto"
     scores, tool = [], None
     extensometers = {g: [] for g in gauges}
     gauge_truth = {g: point_truth(dataset, [g[0], g[2]], [g[1], g[3]]) for g in gauges}
@@ -166,8 +186,9 @@ def score_command(args) -> int:
         if not t.valid.all():
             raise ValueError(f"--extensometer {','.join(f'{v:g}' for v in g)}: an end does not see the specimen in the "
                              "left reference image")
-    for state, path in _states_of(dataset, paths, args.state):
-        result = read_result(path, fmt, args.columns, args.pixel_origin, args.length_unit)
+    for state, path in _states_of(dataset, paths, args.state, fmt):
+        result = read_result(path, fmt, args.columns, args.pixel_origin, args.length_unit, convention,
+                             args.ignore_strain)
         tool = tool or result.tool
         if mask is not None:
             result, outside = _inside_mask(result, mask)
