@@ -71,7 +71,7 @@ def recognises(header: list[str]) -> bool:
 def read_matchid(path: Path, *, strain_convention: StrainConvention | None = None, ignore_strain: bool = False,
                  pixel_shift: float = 0.0):
     """One MatchID CSV export (module notes); ``pixel_shift`` is added to the pixel coordinates."""
-    from workbench.results import ResultFormatError, ToolResult, read_table, table_column
+    from workbench.readers.table import ResultFormatError, ToolResult, read_table, table_column
 
     header, rows = read_table(path)
     cols = columns_of(header)

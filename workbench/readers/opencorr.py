@@ -41,7 +41,7 @@ def recognises(header: list[str]) -> bool:
 def read_opencorr(path: Path, *, strain_convention: StrainConvention | None = None, ignore_strain: bool = False,
                   pixel_shift: float = 0.0, length_scale_mm: float = 1.0):
     """One OpenCorr result table (module notes)."""
-    from workbench.results import ResultFormatError, ToolResult, read_table, table_column
+    from workbench.readers.table import ResultFormatError, ToolResult, read_table, table_column
 
     header, rows = read_table(path)
     stereo = all(c in header for c in REQUIRED_STEREO)

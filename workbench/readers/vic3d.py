@@ -40,7 +40,7 @@ def read_vic(path: Path, *, strain_convention: StrainConvention | None = None, i
              pixel_shift: float = 0.0, length_scale_mm: float = 1.0):
     """One VIC-3D/VIC-2D CSV export (module notes). ``pixel_shift`` is added to x, y (0 for VIC's 0-based pixel
     centres); ``length_scale_mm`` is one length unit of X..W in mm."""
-    from workbench.results import ResultFormatError, ToolResult, read_table, table_column
+    from workbench.readers.table import ResultFormatError, ToolResult, read_table, table_column
 
     header, rows = read_table(path)
     missing = [c for c in REQUIRED if c not in header]
