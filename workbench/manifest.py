@@ -226,6 +226,12 @@ def save_figure(fig, path: str | Path, **savefig_kwargs) -> Path:
     from labio.atomic import atomic_write_bytes
 
     path = Path(path)
+    fmt = path.suffix.lstrip(".").lower() or "png"
+    if fmt == "png":                    # a report's figure: with the record of its axes (workbench.reporting.figures)
+        from workbench.reporting.figures import png_bytes
+
+        dpi = savefig_kwargs.pop("dpi", 110)
+        return atomic_write_bytes(path, png_bytes(fig, dpi=dpi, close=False, **savefig_kwargs))
     buffer = io.BytesIO()
-    fig.savefig(buffer, format=(path.suffix.lstrip(".") or "png"), **savefig_kwargs)
+    fig.savefig(buffer, format=fmt, **savefig_kwargs)
     return atomic_write_bytes(path, buffer.getvalue())

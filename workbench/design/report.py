@@ -9,7 +9,6 @@ verification, predicted against measured per component.
 from __future__ import annotations
 
 import collections
-import io
 import math
 from pathlib import Path
 
@@ -34,13 +33,11 @@ def _fmt(v, digits: int = 3) -> str:
 
 
 def _png(fig, path: Path) -> str:
-    import matplotlib.pyplot as plt
+    from workbench.reporting.figures import png_bytes
 
-    buffer = io.BytesIO()
-    fig.savefig(buffer, format="png", dpi=100, bbox_inches="tight")
-    plt.close(fig)
+    data = png_bytes(fig, dpi=100, bbox_inches="tight")
     with atomic_writer(path, "wb") as f:
-        f.write(buffer.getvalue())
+        f.write(data)
     return path.name
 
 

@@ -8,7 +8,6 @@ measured map and its truth share one, chosen from both).
 """
 from __future__ import annotations
 
-import io
 import json
 from pathlib import Path
 
@@ -16,18 +15,38 @@ import numpy as np
 
 from workbench.scoring.datasets import Dataset
 
-#: The summary table's columns (where any state has them), in order, with their headers.
-SUMMARY_KEYS = (("valid_fraction", "measured fraction"), ("rms_px", "u, v error RMS px"),
-                ("rms_um", "3-D error RMS µm"), ("max_um", "3-D error max µm"),
-                ("bias_U_um", "U bias µm"), ("bias_V_um", "V bias µm"), ("bias_W_um", "W bias µm"),
-                ("position_rms_um", "position RMS µm"),
-                ("sigma_coverage_95_U", "σ coverage U"), ("sigma_coverage_95_W", "σ coverage W"),
-                ("strain_rms_e1_vs_windowed_microstrain", "e1 error RMS µε (vs windowed truth)"),
-                ("strain_peak_e1_measured_microstrain", "peak e1 measured µε"),
-                ("strain_peak_e1_windowed_microstrain", "peak e1 windowed truth µε"),
-                ("strain_peak_e1_exact_microstrain", "peak e1 exact µε"),
-                ("strain_peak_e1_error_percent", "peak error %"),
-                ("strain_sigma_coverage_95_exx", "strain σ coverage exx"))
+#: The summary tables' columns (shown where any state has them): (header, metric keys joined in one cell).
+DISPLACEMENT_COLUMNS = (("measured fraction", ("valid_fraction",)), ("u, v error RMS px", ("rms_px",)),
+                        ("3-D error RMS µm", ("rms_um",)), ("3-D error max µm", ("max_um",)),
+                        ("bias U, V, W µm", ("bias_U_um", "bias_V_um", "bias_W_um")),
+                        ("position error RMS µm", ("position_rms_um",)),
+                        ("σ coverage u, v", ("sigma_coverage_95_u", "sigma_coverage_95_v")),
+                        ("σ coverage U, V, W", ("sigma_coverage_95_U", "sigma_coverage_95_V", "sigma_coverage_95_W")))
+STRAIN_COLUMNS = (("e1 error RMS µε (vs windowed truth)", ("strain_rms_e1_vs_windowed_microstrain",)),
+                  ("exx, eyy, exy error RMS µε", ("strain_rms_exx_vs_windowed_microstrain",
+                                                   "strain_rms_eyy_vs_windowed_microstrain",
+                                                   "strain_rms_exy_vs_windowed_microstrain")),
+                  ("peak e1 µε: measured / windowed / exact", ("strain_peak_e1_measured_microstrain",
+                                                              "strain_peak_e1_windowed_microstrain",
+                                                              "strain_peak_e1_exact_microstrain")),
+                  ("peak error %", ("strain_peak_e1_error_percent",)),
+                  ("strain σ coverage exx, eyy, exy", ("strain_sigma_coverage_95_exx", "strain_sigma_coverage_95_eyy",
+                                                       "strain_sigma_coverage_95_exy")))
+
+
+def _table(scores, columns, with_points: bool) -> list[str]:
+    shown = [(h, keys) for h, keys in columns if any(k in s.metrics for s in scores for k in keys)]
+    if not shown:
+        return []
+    head = ["state", "label"] + (["points"] if with_points else []) + [h for h, _ in shown]
+    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    for s in scores:
+        cells = [str(s.state), s.label] + ([f"{s.metrics['valid_points']}/{s.metrics['truth_points']}"]
+                                           if with_points else [])
+        for h, keys in shown:
+            cells.append((" / " if " / " in h else ", ").join(_fmt(s.metrics.get(k)) for k in keys))
+        lines.append("| " + " | ".join(cells) + " |")
+    return lines + [""]
 
 
 def _fmt(v) -> str:
@@ -41,12 +60,9 @@ def _fmt(v) -> str:
 
 
 def _png(fig) -> bytes:
-    import matplotlib.pyplot as plt
+    from workbench.reporting.figures import png_bytes
 
-    buffer = io.BytesIO()
-    fig.savefig(buffer, format="png", dpi=100)
-    plt.close(fig)
-    return buffer.getvalue()
+    return png_bytes(fig, dpi=100)
 
 
 def _speckle(dataset: Dataset):
@@ -226,7 +242,6 @@ def write_score_report(out: Path, dataset: Dataset, scores: list, tool: str, sou
     doc = {"dataset": str(dataset.folder), "kind": dataset.kind, "tool": tool, "results": [str(s) for s in sources],
            "notes": notes or [], "mask": mask, "states": [s.metrics for s in scores],
            "extensometers": [{"segment_px": list(seg), "states": rows} for seg, rows in extensometers.items()]}
-    keys = [(k, h) for k, h in SUMMARY_KEYS if any(k in s.metrics for s in scores)]
     md = [f"# {tool} scored against the truth of `{dataset.folder.name}`", "",
           f"Dataset: `{dataset.folder}` ({dataset.kind}, {dataset.n_states} states). Result files: "
           + ", ".join(f"`{s}`" for s in sources) + ".", "",
@@ -240,12 +255,11 @@ def write_score_report(out: Path, dataset: Dataset, scores: list, tool: str, sou
           "of the errors inside ±1.96 σ of the tool's own uncertainty (95 % for an honest σ).", ""]
     if mask:
         md += [f"Scored inside the user's mask `{mask}` only.", ""]
-    md += ["## Summary", "", "| state | label | points | " + " | ".join(h for _, h in keys) + " |",
-           "|" + "---|" * (3 + len(keys))]
-    for s in scores:
-        md.append(f"| {s.state} | {s.label} | {s.metrics['valid_points']}/{s.metrics['truth_points']} | "
-                  + " | ".join(_fmt(s.metrics.get(k)) for k, _ in keys) + " |")
-    md += [f"\n- {n}" for n in notes or []]
+    md += ["## Summary", "", "### Displacement", ""] + _table(scores, DISPLACEMENT_COLUMNS, True)
+    strain_table = _table(scores, STRAIN_COLUMNS, False)
+    if strain_table:
+        md += ["### Strain", ""] + strain_table
+    md += [f"- {n}" for n in notes or []]
     md.append("")
     figure = concentration_figure(scores, tool)
     if figure is not None:

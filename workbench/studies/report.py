@@ -113,9 +113,9 @@ def save_csv(ds, path: Path) -> Path:
 # ------------------------------------------------------------------------------------------------------------
 def png_base64(fig) -> str:
     """A matplotlib figure as base64 PNG text (110 dpi), for an ``<img src="data:image/png;base64,...">``."""
-    buffer = io.BytesIO()
-    fig.savefig(buffer, format="png", dpi=110)
-    return base64.b64encode(buffer.getvalue()).decode()
+    from workbench.reporting.figures import png_bytes
+
+    return base64.b64encode(png_bytes(fig, dpi=110, close=False)).decode()
 
 
 def metric_figures(ds, study: Study, floors: dict, descriptions: dict) -> list[tuple[str, str]]:

@@ -8,7 +8,6 @@ speckle-quality figures (image, histogram, noise model), and the Star curve on t
 from __future__ import annotations
 
 import csv
-import io
 import json
 import math
 from pathlib import Path
@@ -30,13 +29,11 @@ def _fmt(value, digits: int = 3) -> str:
 
 
 def _png(fig, path: Path) -> str:
-    import matplotlib.pyplot as plt
+    from workbench.reporting.figures import png_bytes
 
-    buffer = io.BytesIO()
-    fig.savefig(buffer, format="png", dpi=110, bbox_inches="tight")
-    plt.close(fig)
+    data = png_bytes(fig, dpi=110, bbox_inches="tight")
     with atomic_writer(path, "wb") as f:
-        f.write(buffer.getvalue())
+        f.write(data)
     return path.name
 
 

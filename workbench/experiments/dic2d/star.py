@@ -57,7 +57,6 @@ induced bias), noise, interpolation and the stripes' tilt.
 from __future__ import annotations
 
 import argparse
-import io
 import json
 import math
 import shutil
@@ -546,10 +545,9 @@ def _plot_png(runs: list[dict], periods_px) -> bytes:
         ax.grid(alpha=0.3)
         ax.legend(fontsize=8, loc="lower right")
     fig.tight_layout()
-    buffer = io.BytesIO()
-    fig.savefig(buffer, format="png", dpi=120)
-    plt.close(fig)
-    return buffer.getvalue()
+    from workbench.reporting.figures import png_bytes
+
+    return png_bytes(fig, dpi=120)
 
 
 def _report_markdown(case: dict, runs: list[dict]) -> str:

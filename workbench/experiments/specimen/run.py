@@ -386,6 +386,8 @@ def _strain_figure(path: Path, m: dict, name: str) -> None:
         ax.set_yticks([])
     fig.colorbar(im, ax=axes, shrink=0.8)
     fig.suptitle(f"{name}: strain magnitude, state {k}")
+    from workbench.reporting.figures import png_bytes
+
+    data = png_bytes(fig, dpi=90)
     with atomic_writer(path, "wb") as handle:
-        fig.savefig(handle, format="png", dpi=90)
-    plt.close(fig)
+        handle.write(data)
