@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # Set up everything the workbench needs on a fresh Debian/Ubuntu machine with Python >= 3.11:
 #   1. the LLVM 19 shared library that Dr.Jit's LLVM backend loads (Debian package libllvm19),
-#   2. a virtual environment in .venv with the project and its test tools.
+#   2. Debian's chromium (the browser check of the HTML reports; WORKBENCH_NO_CHROMIUM=1 leaves it out),
+#   3. a virtual environment in .venv with the project and its test tools.
 # Idempotent: re-running it only installs what is missing.
 set -euo pipefail
 here="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
@@ -25,6 +26,20 @@ if ! have_llvm19; then
         DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -qq libllvm19 >/dev/null
     else
         echo "[bootstrap] WARNING: no apt-get; install LLVM 19's shared library (libLLVM-19.so) yourself" >&2
+    fi
+fi
+
+# Debian's Chromium: the browser check reads every HTML report as its reader does (workbench.reporting.browser_check);
+# without it those tests are skipped. WORKBENCH_NO_CHROMIUM=1 leaves it out.
+if [ "${WORKBENCH_NO_CHROMIUM:-0}" != "1" ] && ! command -v chromium >/dev/null 2>&1; then
+    if command -v apt-get >/dev/null 2>&1 && { [ "$(id -u)" -eq 0 ] || command -v sudo >/dev/null 2>&1; }; then
+        SUDO=""
+        [ "$(id -u)" -ne 0 ] && SUDO="sudo"
+        echo "[bootstrap] installing Debian's chromium (the browser check of the HTML reports)"
+        $SUDO apt-get update -qq
+        DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -qq chromium >/dev/null
+    else
+        echo "[bootstrap] note: no chromium and no apt-get: the browser check of the reports is skipped" >&2
     fi
 fi
 

@@ -11,6 +11,23 @@ import json
 KEY = "workbench:axes"
 
 
+#: Unit suffixes of the project's names (``noise_grey``, ``bias_px``) and how a label writes them.
+UNITS = {"px": "px", "grey": "grey", "mm": "mm", "um": "µm", "deg": "°", "percent": "%", "s": "s", "ue": "µε",
+         "microstrain": "µε", "n": "N", "mpa": "MPa", "nm": "nm"}
+
+
+def quantity_label(name: str) -> str:
+    """An axis label from a parameter or metric name: ``"noise_grey"`` -> ``"noise (grey)"``,
+    ``"scenario.render.read_noise_grey"`` -> ``"render read noise (grey)"``, ``"bias_px"`` -> ``"bias (px)"``."""
+    parts = str(name).split(".")
+    if parts[0] in ("scenario", "instrument", "design") and len(parts) > 1:
+        parts = parts[1:]
+    words = " ".join(parts).split("_")
+    unit = UNITS.get(words[-1].lower()) if len(words) > 1 else None
+    text = " ".join(words[:-1] if unit else words).strip()
+    return f"{text} ({unit})" if unit else text
+
+
 def axes_record(fig) -> list[dict]:
     """What each visible axes of ``fig`` shows (after a draw, so tick labels are known)."""
     out = []
@@ -52,3 +69,16 @@ def read_axes_record(png: bytes) -> list[dict] | None:
     except OSError:
         return None
     return json.loads(text[KEY]) if KEY in text else None
+
+
+def picture_png(image) -> bytes:
+    """A picture (an image array shown as it is, no plotted axes: a rendered view, a speckle image) as PNG bytes
+    whose record says it has no axes, so the browser check does not ask for labels it cannot have."""
+    import numpy as np
+    from PIL import Image, PngImagePlugin
+
+    info = PngImagePlugin.PngInfo()
+    info.add_text(KEY, "[]")
+    buffer = io.BytesIO()
+    Image.fromarray(np.asarray(image)).save(buffer, format="PNG", pnginfo=info)
+    return buffer.getvalue()

@@ -126,6 +126,8 @@ def metric_figures(ds, study: Study, floors: dict, descriptions: dict) -> list[t
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
+    from workbench.reporting.figures import quantity_label
+
     out = []
     floor_names = {f for f, _ in floors.values()}
     for m in ds.data_vars:
@@ -152,7 +154,7 @@ def metric_figures(ds, study: Study, floors: dict, descriptions: dict) -> list[t
                 label = ", ".join(f"{v}" for v in np.atleast_1d(flat["_c"].values[i])) if axes_dims else m
                 ax.errorbar(x, flat.isel(_c=i).values, yerr=sflat.isel(_c=i).values, marker="o", ms=3, capsize=2,
                             label=str(label))
-            ax.set_xlabel(own[0])
+            ax.set_xlabel(quantity_label(own[0]))
         elif study.mode == "cases":
             labels = [str(v) for v in ds["case"].values]
             ax.bar(range(len(labels)), mean.values, yerr=std.values, capsize=3, color="C0")
@@ -178,7 +180,8 @@ def metric_figures(ds, study: Study, floors: dict, descriptions: dict) -> list[t
                 for j, value in enumerate(ds[second].values):
                     color = f"C{j % 10}"
                     ax.errorbar(x, mean.isel({second: j}).values, yerr=std.isel({second: j}).values, marker="o",
-                                ms=3, capsize=2, color=color, label=f"{second} = {value}")
+                                ms=3, capsize=2, color=color,
+                                label=f"{quantity_label(second)} = {value}")
                     if floor is not None:
                         ax.plot(x, floor.isel({second: j}).values, "--", color=color, lw=1)
                 if floor is not None:
@@ -189,17 +192,17 @@ def metric_figures(ds, study: Study, floors: dict, descriptions: dict) -> list[t
                 axs[0, 1].set_xticklabels([f"{v:g}" if isinstance(v, (int, float, np.number)) else str(v) for v in x])
                 axs[0, 1].set_yticks(range(ds.sizes[second]))
                 axs[0, 1].set_yticklabels([str(v) for v in ds[second].values])
-                axs[0, 1].set_xlabel(first)
-                axs[0, 1].set_ylabel(second)
-                fig.colorbar(hm, ax=axs[0, 1], label=m)
+                axs[0, 1].set_xlabel(quantity_label(first))
+                axs[0, 1].set_ylabel(quantity_label(second))
+                fig.colorbar(hm, ax=axs[0, 1], label=quantity_label(m))
                 if m in floors and floors[m][0] in ds:
                     ratio = (mean / floor).transpose(second, first).values
                     for (i, j), r in np.ndenumerate(ratio):
                         if math.isfinite(r):
                             axs[0, 1].text(j, i, f"{r:.2f}×", ha="center", va="center", fontsize=7, color="w")
                     axs[0, 1].set_title("mean; numbers: measured / floor", fontsize=8)
-            ax.set_xlabel(first)
-        ax.set_ylabel(f"{m}")
+            ax.set_xlabel(quantity_label(first))
+        ax.set_ylabel(quantity_label(m))
         ax.grid(alpha=0.3)
         if ax.get_legend_handles_labels()[0]:
             ax.legend(fontsize=7)
@@ -215,7 +218,8 @@ def write_html(path: Path, study: Study, ds, figures, summary_lines: list[str], 
     """A self-contained HTML report (figures embedded), written atomically."""
     parts = ["<!doctype html><html><head><meta charset='utf-8'>",
              f"<title>{html.escape(study.name)}</title>",
-             "<style>body{font-family:sans-serif;max-width:1100px;margin:2em auto;line-height:1.4}"
+             "<style>body{font-family:sans-serif;max-width:1100px;margin:2em auto;padding:0 1em;line-height:1.4}"
+             "img{max-width:100%;height:auto}"
              "table{border-collapse:collapse}td,th{border:1px solid #ccc;padding:2px 6px;font-size:13px}"
              "pre{background:#f6f6f6;padding:8px;overflow:auto;font-size:12px}</style></head><body>",
              f"<h1>Study: {html.escape(study.name)}</h1>",

@@ -186,6 +186,14 @@ def _star_figure(result, out: Path) -> str | None:
         ax.axvline(res["l10_px"], color="C3", lw=0.8, label=f"l10 = {res['l10_px']:.1f} px")
         ax.legend(fontsize=8)
     ax.set_xscale("log")
+    # plain numbers at round periods: the log axis' own minor labels (2x10^1, 3x10^1, ...) overlapped
+    from matplotlib.ticker import NullFormatter
+
+    periods = np.asarray(res["curve_period_px"], float)
+    ticks = [t for t in (2, 5, 10, 20, 30, 50, 100, 200, 300, 500, 1000) if periods.min() <= t <= periods.max()]
+    ax.set_xticks(ticks)
+    ax.set_xticklabels([f"{t:g}" for t in ticks])
+    ax.xaxis.set_minor_formatter(NullFormatter())
     ax.set_xlabel("Star period (px)", fontsize=8)
     ax.set_ylabel("measured / imposed amplitude", fontsize=8)
     ax.set_title("spatial resolution on your pattern (DIC Challenge 2.0 Star)", fontsize=9)

@@ -18,23 +18,28 @@ GOALS = {"load_N": 1800.0, "U_um": 0.1, "V_um": 0.1, "W_um": 0.3, "strain_percen
 
 
 def _panel(ax, x, y, values, title, cmap="viridis", symmetric=False, unit="", like=None):
-    """One map; ``like``: the array whose colour range this panel shares (measured beside truth)."""
+    """One map over the specimen face; ``like``: the array shown beside it (measured beside truth) whose colour
+    range it shares: the range is taken from both (1st-99th percentile), so neither is clipped to the other's."""
     v = np.ma.masked_invalid(values)
-    ref = values if like is None else like
-    finite = np.isfinite(ref)
+    ref = np.concatenate([np.ravel(values), np.ravel(like)]) if like is not None else np.ravel(values)
+    ref = ref[np.isfinite(ref)]
     if symmetric:
-        lim = float(np.nanmax(np.abs(ref))) if finite.any() else 1.0
+        lim = float(np.percentile(np.abs(ref), 99)) if ref.size else 1.0
+        lim = lim if lim > 0 else 1.0
         mesh = ax.pcolormesh(x, y, v, cmap="RdBu_r", vmin=-lim, vmax=lim, shading="nearest")
     else:
-        low, high = (float(np.nanmin(ref)), float(np.nanmax(ref))) if finite.any() else (0.0, 1.0)
-        mesh = ax.pcolormesh(x, y, v, cmap=cmap, vmin=low, vmax=high, shading="nearest")
-    ax.set_title(title, fontsize=8)
+        low, high = (float(v) for v in np.percentile(ref, [1, 99])) if ref.size else (0.0, 1.0)
+        mesh = ax.pcolormesh(x, y, v, cmap=cmap, vmin=low, vmax=high if high > low else low + 1e-9,
+                             shading="nearest")
+    ax.set_title(title, fontsize=9)
     ax.set_aspect("equal")
     ax.invert_yaxis()                       # specimen y points down, as in the images
-    ax.tick_params(labelsize=6)
+    ax.tick_params(labelsize=7)
+    ax.set_xlabel("specimen x (mm)", fontsize=8)
+    ax.set_ylabel("specimen y (mm)", fontsize=8)
     cb = ax.figure.colorbar(mesh, ax=ax, fraction=0.035, pad=0.02)
-    cb.ax.tick_params(labelsize=6)
-    cb.set_label(unit, fontsize=6)
+    cb.ax.tick_params(labelsize=7)
+    cb.set_label(unit, fontsize=8)
 
 
 def _fig7(path: Path, load: float, m: dict) -> None:
@@ -44,7 +49,7 @@ def _fig7(path: Path, load: float, m: dict) -> None:
 
     x, y = m["x"], m["y"]
     measured, truth = m["U"]
-    fig, axes = plt.subplots(4, 3, figsize=(13, 8.5))
+    fig, axes = plt.subplots(4, 3, figsize=(12, 10))
     names = ("X (U)", "Y (V)", "Z (W)", "magnitude")
     for r, name in enumerate(names):
         if r < 3:
@@ -53,10 +58,8 @@ def _fig7(path: Path, load: float, m: dict) -> None:
             a, b = 1e3 * np.linalg.norm(measured, axis=-1), 1e3 * np.linalg.norm(truth, axis=-1)
         sym = r < 3
         _panel(axes[r, 0], x, y, a, f"{name} measured", symmetric=sym, unit="µm", like=b)
-        _panel(axes[r, 1], x, y, b, f"{name} truth (FE)", symmetric=sym, unit="µm")
+        _panel(axes[r, 1], x, y, b, f"{name} truth (FE)", symmetric=sym, unit="µm", like=a)
         _panel(axes[r, 2], x, y, a - b, f"{name} error", symmetric=True, unit="µm")
-    for ax in axes[-1]:
-        ax.set_xlabel("specimen x (mm)", fontsize=7)
     fig.suptitle(f"Fig 7 at {load:g} N: displacement after mean rigid-body motion removal (left camera frame)",
                  fontsize=10)
     fig.tight_layout()
@@ -70,17 +73,17 @@ def _fig8(path: Path, load: float, m: dict, vsg_px: int) -> None:
     import matplotlib.pyplot as plt
 
     x, y = m["x"], m["y"]
-    fig, axes = plt.subplots(2, 4, figsize=(16, 5))
+    # four rows of two: each quantity's measured / windowed truth, then exact truth / error (a page's width)
+    fig, axes = plt.subplots(4, 2, figsize=(12, 11))
+    axes = axes.reshape(2, 4)
     for r, (key, name) in enumerate((("strain", "Lagrangian strain magnitude"), ("area", "relative area change"))):
         measured, filtered, exact = (1e6 * v for v in m[key])
         sym = key == "area"
         _panel(axes[r, 0], x, y, measured, f"{name}: measured", symmetric=sym, unit="µε", like=filtered)
-        _panel(axes[r, 1], x, y, filtered, f"truth through the same window (VSG {vsg_px} px)", symmetric=sym,
-               unit="µε")
+        _panel(axes[r, 1], x, y, filtered, f"truth through the window (VSG {vsg_px} px)", symmetric=sym,
+               unit="µε", like=measured)
         _panel(axes[r, 2], x, y, exact, "exact truth (FE)", symmetric=sym, unit="µε", like=filtered)
         _panel(axes[r, 3], x, y, measured - filtered, "error vs the windowed truth", symmetric=True, unit="µε")
-    for ax in axes[-1]:
-        ax.set_xlabel("specimen x (mm)", fontsize=7)
     fig.suptitle(f"Fig 8 at {load:g} N", fontsize=10)
     fig.tight_layout()
     save_figure(fig, path, dpi=110)

@@ -315,6 +315,6 @@ def write_calibration_report(metrics: dict, out_dir: Path) -> None:
     ax2.set_title("(b) distance to the fitted plane [µm]")
     ax2.set_xlabel("corner column")
     ax2.set_ylabel("corner row")
-    fig.colorbar(im, ax=ax2)
+    fig.colorbar(im, ax=ax2).set_label("distance to the plane (µm)")
     save_figure(fig, Path(out_dir) / "plane_fit.png", dpi=110)
     plt.close(fig)

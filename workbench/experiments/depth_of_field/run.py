@@ -284,18 +284,29 @@ def reproduce_depth_of_field(out_dir, *, scale: float = 1.0, object_tilt_deg: fl
     h, w = st.shape
     side = np.hstack([st, np.full((h, max(4, w // 100)), 255.0), cv])
     f = min(1.0, 1400 / side.shape[1])
-    atomic_write_image(out_dir / "side_by_side.png",
-                       cv2.resize(np.clip(side, 0, 255).astype(np.uint8), None, fx=f, fy=f, interpolation=cv2.INTER_AREA))
+    from labio.atomic import atomic_write_bytes
+    from workbench.reporting.figures import picture_png
+
+    atomic_write_bytes(out_dir / "side_by_side.png", picture_png(
+        cv2.resize(np.clip(side, 0, 255).astype(np.uint8), None, fx=f, fy=f, interpolation=cv2.INTER_AREA)))
     figure, axes = plt.subplots(2, 2, figsize=(11, 7))
-    for c, name in enumerate(("scheimpflug", "conventional")):
-        m = fig[name]["maps"]
-        for r, (key, label) in enumerate((("blur_px", "blur-circle diameter (px)"),
-                                          ("error_px", "|displacement error| (px)"))):
-            sc = axes[r, c].scatter(m["x"], m["y"], c=m[key], s=4, cmap="magma")
+    for r, (key, label) in enumerate((("blur_px", "blur-circle diameter (px)"),
+                                      ("error_px", "|displacement error| (px)"))):
+        # one colour scale for both cameras' maps of a quantity, from both (a Scheimpflug blur map that is ~0 everywhere
+        # is shown as ~0 on the untilted camera's scale, not as its rounding noise)
+        both = np.concatenate([np.ravel(fig[name]["maps"][key]) for name in ("scheimpflug", "conventional")])
+        both = both[np.isfinite(both)]
+        high = float(np.percentile(both, 99)) if both.size else 1.0
+        for c, name in enumerate(("scheimpflug", "conventional")):
+            m = fig[name]["maps"]
+            sc = axes[r, c].scatter(m["x"], m["y"], c=m[key], s=4, cmap="magma", vmin=0.0,
+                                    vmax=high if high > 0 else 1.0)
             axes[r, c].invert_yaxis()
             axes[r, c].set_aspect("equal")
-            axes[r, c].set_title(f"{name}: {label}", fontsize=8)
-            figure.colorbar(sc, ax=axes[r, c], fraction=0.035)
+            axes[r, c].set_title(f"{name}: {label}", fontsize=9)
+            axes[r, c].set_xlabel("x (px)", fontsize=8)
+            axes[r, c].set_ylabel("y (px)", fontsize=8)
+            figure.colorbar(sc, ax=axes[r, c], fraction=0.035).set_label(label, fontsize=8)
     figure.suptitle(f"Plate at {object_tilt_deg}°, f/{f_number}: tilted vs untilted sensor, same lens", fontsize=9)
     figure.tight_layout()
     save_figure(figure, out_dir / "dic_maps.png", dpi=110)

@@ -388,7 +388,7 @@ def _plot(path: Path, rows: list[dict], title: str, scale: float = 1.0) -> None:
 
     k = np.arange(1, len(rows) + 1)
     imposed = np.array([r["imposed_mm"] for r in rows])
-    fig, axes = plt.subplots(1, 2, figsize=(10, 4))
+    fig, axes = plt.subplots(1, 2, figsize=(10, 5))
     axes[0].plot(k, [r["mean_error_um"] for r in rows], "o-", label="ours: mean error of D")
     band = np.array([np.nan if (r.get("mean_D_uncertainty") or {}).get("band95_um") is None
                      else r["mean_D_uncertainty"]["band95_um"] for r in rows], dtype=float)
@@ -410,7 +410,8 @@ def _plot(path: Path, rows: list[dict], title: str, scale: float = 1.0) -> None:
         ax.set_xlabel("imposed stage displacement (mm), in measurement order")
         ax.set_ylabel(label)
         ax.grid(alpha=0.3)
-        ax.legend(fontsize=7)
+        # below the axes: inside, the legend hid the paper's curve
+        ax.legend(fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.2), ncol=2, frameon=False)
     fig.suptitle(f"Rigid-motion test (Fig 6): {title}", fontsize=9)
     fig.tight_layout()
     save_figure(fig, path, dpi=130)
