@@ -189,3 +189,33 @@ def test_strain_window_option_is_checked():
         strain_window_arg("8")
     with pytest.raises(ValueError, match="a quadratic strain fit needs a strain window"):
         StrainSettings(None, "quadratic")
+
+
+def test_dense_truth_files_read_back_with_the_strain(plate, tmp_path):
+    """The specimen dataset's truth_states.npz read by read_dense_truth: its strain tensor of each load step is the
+    analytic one on every pixel that sees the plate (1e-6: the file is float32) and zero for the reference; the
+    export's points.csv carries the same tensor per point (Exx_left ... columns), and its truth_reference.npz reads
+    back as the export kind; a file of other keys is refused naming them."""
+    import csv
+
+    from workbench.scoring.datasets import DatasetError, read_dense_truth
+    from workbench.scoring.export import export_dataset
+
+    d = read_dense_truth(plate.folder / "truth_states.npz")
+    assert d["kind"] == "specimen" and d["valid"].sum() > 100
+    for k in (1, 2):
+        np.testing.assert_allclose(d["strain_left"][k][d["valid"]], np.broadcast_to(
+            _analytic_world_strain(plate, k), (int(d["valid"].sum()), 3, 3)), atol=1e-6)
+    assert np.abs(d["strain_left"][0][d["valid"]]).max() < 1e-6
+    export_dataset(plate, "native", tmp_path / "ex", log=lambda *a: None)
+    with open(tmp_path / "ex" / "truth" / "points.csv") as f:
+        rows = [r for r in csv.DictReader(f) if r["state"] == "2" and r["valid"] == "1"]
+    E = _analytic_world_strain(plate, 2)
+    assert len(rows) > 20
+    for r in rows[:50]:
+        got = np.array([float(r[f"E{c}_left"]) for c in ("xx", "yy", "zz", "yz", "xz", "xy")])
+        np.testing.assert_allclose(got, [E[0, 0], E[1, 1], E[2, 2], E[1, 2], E[0, 2], E[0, 1]], atol=1e-9)
+    assert read_dense_truth(tmp_path / "ex" / "truth" / "truth_reference.npz")["kind"] == "export"
+    np.savez(tmp_path / "other.npz", a=np.zeros(2))
+    with pytest.raises(DatasetError, match=r"other.npz: not a dense truth file \(keys a\)"):
+        read_dense_truth(tmp_path / "other.npz")

@@ -352,3 +352,30 @@ def test_a_local_cluster_leaves_this_process_environment_as_it_was(monkeypatch):
     finally:
         client.close()
         cluster.close()
+
+
+def test_dry_run_counts_the_cases_and_estimates_from_one_timed_case_that_the_sweep_keeps(tmp_path, capsys):
+    """--dry-run on a fresh folder: 12 cases (2 x 2 axes x 3 seeds), one of them run here to time it (the only record
+    in cases/), the estimate = that case's seconds x the 11 left / 2 workers as printed; a second dry run estimates
+    from the finished record without running anything; the sweep afterwards computes 11 cases, not 12."""
+    from workbench.cli import main
+    from workbench.studies.sweep import plan_sweep
+
+    path = tmp_path / "study.toml"
+    path.write_text(NOISE_SUBSET)
+    out, store = tmp_path / "out", tmp_path / "store"
+    base = ["sweep", str(path), "--workers", "2", "--store", str(store), "--out", str(out)]
+    assert main(base + ["--dry-run"]) == 0
+    text = capsys.readouterr().out
+    records = list((out / "cases").glob("*.json"))
+    assert len(records) == 1
+    seconds = json.loads(records[0].read_text())["seconds"]
+    assert "12 cases (2 axes: noise_grey, subset_px; 3 seeds each), 1 already done" in text
+    assert f"11 cases x {seconds:.1f} s (median of 1 finished) / 2 workers" in text
+    plan = plan_sweep(load_study(path), out, store=DatasetStore(store), workers=2)
+    assert plan["timed_here"] is None and plan["todo"] == 11
+    assert plan["estimate_s"] == pytest.approx(seconds * 11 / 2)
+    assert len(list((out / "cases").glob("*.json"))) == 1            # the second plan ran nothing
+    assert main(base + ["--quiet"]) == 0
+    log = json.loads((out / "sweep-log.json").read_text())
+    assert (log["already_done"], log["computed"]) == (1, 11)

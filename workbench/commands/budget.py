@@ -1,7 +1,7 @@
 """``workbench budget``: the error budget of a study file (each source alone, then all together)."""
 from __future__ import annotations
 
-from workbench.commands.sweep import add_study_arguments, run_study
+from workbench.commands.sweep import add_study_arguments, dry_run, run_study
 
 
 def add_parser(sub) -> None:
@@ -20,6 +20,8 @@ def budget_command(args) -> int:
     base = load_study(args.study)
     study = budget_study(base, args.metric)          # checks the [budget] table and the metric
     at = parse_at(args.at)
+    if args.dry_run:
+        return dry_run(args, study)
     summary, lines, versions = run_study(args, study, copy_of=base)
     result = write_budget(study, args.out, summary.records, args.metric, at, lines, versions)
     print("\n".join(lines))

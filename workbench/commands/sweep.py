@@ -22,6 +22,10 @@ def add_study_arguments(parser) -> None:
     parser.add_argument("--out", type=Path, required=True,
                         help="output folder (cases/<hash>.json, results.nc, results.csv, report.html); rerun the "
                              "same command to resume")
+    parser.add_argument("--dry-run", action="store_true",
+                        help="print the case count, the cases already done in --out and a time estimate, and stop: "
+                             "the estimate comes from the finished cases, else from one case run here to time it "
+                             "(its result is kept)")
 
 
 def add_parser(sub) -> None:
@@ -73,11 +77,48 @@ def run_study(args, study, copy_of=None):
     return summary, _summary_lines(study, summary, args.scheduler, args.workers), environment_versions()
 
 
+def _duration(seconds: float) -> str:
+    seconds = int(round(seconds))
+    return f"{seconds // 3600}:{seconds % 3600 // 60:02d}:{seconds % 60:02d}" if seconds >= 3600 else \
+        f"{seconds // 60}:{seconds % 60:02d}"
+
+
+def dry_run(args, study) -> int:
+    """``--dry-run``: the plan of the study (:func:`workbench.studies.sweep.plan_sweep`) in words."""
+    from workbench.store import DatasetStore
+    from workbench.studies.sweep import plan_sweep
+
+    if args.out.exists() and not args.out.is_dir():
+        raise ValueError(f"--out {args.out} is a file, not a folder")
+    cases_dir = args.out / "cases"
+    if not (cases_dir.is_dir() and any(cases_dir.glob("*.json"))):
+        print(f"{study.name}: timing one case here (no finished case in {args.out} to estimate from) ...", flush=True)
+    plan = plan_sweep(study, args.out, store=DatasetStore(args.store), workers=args.workers,
+                      points=getattr(args, "points", True))
+    where = f"Dask scheduler {args.scheduler}" if args.scheduler else f"{args.workers} process workers"
+    axes = [d for d in study.dims if d != "repeat"]
+    print(f"{study.name}: {plan['cases']} cases ({len(axes)} axes: {', '.join(axes) or 'none'}; "
+          f"{plan['seeds']} seeds each), {plan['done']} already done in {args.out}, {plan['todo']} to run")
+    if plan["timed_here"]:
+        labels = ", ".join(f"{k} = {v}" for k, v in plan["timed_here"]["labels"].items())
+        print(f"  one case ({labels}) took {plan['timed_here']['seconds']:.1f} s here "
+              "(its dataset's rendering included unless the store held it); its result is kept")
+    if plan["estimate_s"] is None:
+        print("  no time estimate: no case finished" + (" (the timed case failed)" if plan["todo"] else ""))
+    else:
+        print(f"  estimate: {plan['todo']} cases x {plan['per_case_s']:.1f} s (median of {plan['from_cases']} "
+              f"finished) / {plan['workers']} workers = {_duration(plan['estimate_s'])} on {where}, plus about a "
+              "minute per worker to compile the DIC kernels")
+    return 0
+
+
 def sweep_command(args) -> int:
     from workbench.studies.study import load_study
     from workbench.studies.report import write_study_outputs
 
     study = load_study(args.study)                   # every error before any work
+    if getattr(args, "dry_run", False):
+        return dry_run(args, study)
     summary, lines, versions = run_study(args, study)
     paths = write_study_outputs(study, args.out, summary.records, lines, versions)
     print("\n".join(lines + paths["summary"]))

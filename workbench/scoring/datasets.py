@@ -334,6 +334,53 @@ def dense_truth(dataset: Dataset, step_px: int = 1) -> dict:
     return out
 
 
+#: The keys of the two dense truth files (:func:`read_dense_truth`).
+EXPORT_TRUTH_KEYS = ("x_px", "y_px", "valid", "uv_left_px")
+SPECIMEN_TRUTH_KEYS = ("x_px", "y_px", "displacement_world_mm", "xy_left_px", "xy_right_px", "strain_E11_E22_E12",
+                       "strain_basis_world")
+
+
+def read_dense_truth(path) -> dict:
+    """Read a dense truth file into arrays with documented keys (the formats page describes both files).
+
+    * ``truth/truth_reference.npz`` of ``workbench export`` (:func:`dense_truth` on every ``truth_step_px``-th
+      pixel of the left reference image): ``x_px`` (W',), ``y_px`` (H',), ``valid`` (H', W'), ``uv_left_px``
+      (S, H', W', 2) and for stereo ``X_left_mm`` (S, H', W', 3), ``xy_right_px`` (S, H', W', 2), ``labels`` (S,);
+    * ``truth_states.npz`` of a specimen dataset (``workbench render specimen``): ``x_px``, ``y_px``,
+      ``displacement_left_mm`` (S, H', W', 3: the world frame is the left camera's), ``xy_left_px``,
+      ``xy_right_px`` (S, H', W', 2: where the material point is in each image of each state), ``strain_left``
+      (S, H', W', 3, 3: the exact surface Green-Lagrange strain tensor, left camera frame, from the file's
+      ``strain_E11_E22_E12`` in its ``strain_basis_world``), ``valid`` (H', W': the pixel sees the specimen).
+
+    Every array is float32 (float64 for ``strain_left``), NaN where the pixel does not see the specimen.
+    ``kind`` says which file it was: ``"export"`` or ``"specimen"``.
+
+    Raises
+    ------
+    DatasetError
+        A file that is neither, naming its keys and the keys each kind has.
+    """
+    path = Path(path)
+    with np.load(path, allow_pickle=False) as z:
+        keys = set(z.files)
+        if all(k in keys for k in EXPORT_TRUTH_KEYS):
+            out = {k: z[k] for k in z.files}
+            out["kind"] = "export"
+            return out
+        if all(k in keys for k in SPECIMEN_TRUTH_KEYS):
+            E = z["strain_E11_E22_E12"].astype(float)
+            Q = z["strain_basis_world"].astype(float)
+            E2 = np.stack([np.stack([E[..., 0], E[..., 2]], -1), np.stack([E[..., 2], E[..., 1]], -1)], -2)
+            strain = np.einsum("hwia,shwab,hwjb->shwij", Q, E2, Q)
+            D = z["displacement_world_mm"]
+            return {"kind": "specimen", "x_px": z["x_px"], "y_px": z["y_px"], "displacement_left_mm": D,
+                    "xy_left_px": z["xy_left_px"], "xy_right_px": z["xy_right_px"], "strain_left": strain,
+                    "valid": np.all(np.isfinite(D[0]), axis=-1)}
+    raise DatasetError(f"{path}: not a dense truth file (keys {', '.join(sorted(keys))}); an export's "
+                       f"truth_reference.npz has {', '.join(EXPORT_TRUTH_KEYS)}, ..., a specimen dataset's "
+                       f"truth_states.npz {', '.join(SPECIMEN_TRUTH_KEYS)}")
+
+
 def _eroded(valid: np.ndarray, step: int, margin_px: int) -> np.ndarray:
     import cv2
 

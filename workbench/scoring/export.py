@@ -38,6 +38,8 @@ from labio.atomic import atomic_write_bytes, atomic_write_text, atomic_writer
 from workbench.scoring.datasets import Dataset, dense_truth, poi_mask, point_truth, roi_polygons_px, true_rig
 
 FORMATS = ("native", "dice", "vic3d", "matchid", "opencv")
+#: The components of a symmetric strain tensor written to ``truth/points.csv`` (``Exx_left`` ...).
+STRAIN_TENSOR_COMPONENTS = ("xx", "yy", "zz", "yz", "xz", "xy")
 #: Calibration file name per format.
 CALIBRATION_NAME = {"native": "calibration.json", "dice": "cal.xml", "vic3d": "calibration.cal",
                     "matchid": "calibration.caldat", "opencv": "stereo.yaml"}
@@ -109,11 +111,12 @@ def _inside(poly: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
 
 
 def truth_grid(dataset: Dataset, poly: np.ndarray, step_px: int):
-    """The points of a ``step_px`` grid inside ``poly`` and their truth (:func:`point_truth`)."""
+    """The points of a ``step_px`` grid inside ``poly`` and their truth (:func:`point_truth`, with the surface strain
+    for a stereo dataset)."""
     w, h = dataset.image_size_px
     X, Y = np.meshgrid(np.arange(0, w, step_px), np.arange(0, h, step_px))
     keep = _inside(poly, X.ravel(), Y.ravel())
-    return point_truth(dataset, X.ravel()[keep], Y.ravel()[keep])
+    return point_truth(dataset, X.ravel()[keep], Y.ravel()[keep], strain=dataset.stereo)
 
 
 def _points_csv(path: Path, dataset: Dataset, pt) -> None:
@@ -121,6 +124,9 @@ def _points_csv(path: Path, dataset: Dataset, pt) -> None:
     header = ["state", "label", "x_px", "y_px", "valid", "u_px", "v_px"]
     if stereo:
         header += ["X_mm", "Y_mm", "Z_mm", "U_mm", "V_mm", "W_mm", "x_right_px", "y_right_px"]
+    strain = pt.strain_left is not None
+    if strain:                  # the exact surface strain tensor, left camera frame (workbench.scoring.datasets)
+        header += [f"E{a}{b}_left" for a, b in STRAIN_TENSOR_COMPONENTS]
     fmt = lambda v: "nan" if not np.isfinite(v) else f"{v:.9g}"  # noqa: E731
     with atomic_writer(path, "w", newline="") as handle:
         writer = csv.writer(handle)
@@ -132,6 +138,9 @@ def _points_csv(path: Path, dataset: Dataset, pt) -> None:
                        fmt(pt.uv_left_px[s, i, 0]), fmt(pt.uv_left_px[s, i, 1])]
                 if stereo:
                     row += [fmt(v) for v in (*pt.X_left_mm[s, i], *D[s, i], *pt.xy_right_px[s, i])]
+                if strain:
+                    row += [fmt(pt.strain_left[s, i, "xyz".index(a), "xyz".index(b)])
+                            for a, b in STRAIN_TENSOR_COMPONENTS]
                 writer.writerow(row)
 
 

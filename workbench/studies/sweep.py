@@ -20,6 +20,8 @@ import uuid
 from dataclasses import dataclass
 from pathlib import Path
 
+import numpy as np
+
 from labio.atomic import atomic_write_text
 from workbench.config import to_dict
 from workbench.store import DatasetStore
@@ -143,6 +145,43 @@ def start_client(scheduler: str | None, workers: int):
             else:
                 os.environ[key] = value
     return Client(cluster), cluster
+
+
+def plan_sweep(study: Study, out_dir: str | Path, *, store: DatasetStore | None = None, workers: int = 2,
+               time_one: bool = True, points: bool = True) -> dict:
+    """What ``workbench sweep`` would do: the case count, how many are already done in ``out_dir``, and a time estimate.
+
+    The estimate is the median duration of this study's finished cases times the cases left, divided by
+    ``workers`` (the cases run in parallel; the one-time kernel compilation per worker is not counted). With no
+    finished case and ``time_one``, one case is run here to time it (its record is kept: the sweep does not run it
+    again); its duration includes rendering its dataset unless the store held it.
+    """
+    from workbench.studies.cases import writes_points
+
+    out_dir = Path(out_dir)
+    cases_dir = out_dir / "cases"
+    cases = study.expand()
+    done = finished_records(cases_dir, [c.hash for c in cases]) if cases_dir.is_dir() else {}
+    todo = [c for c in cases if c.hash not in done]
+    seconds = [float(r["seconds"]) for r in done.values() if isinstance(r.get("seconds"), (int, float))]
+    timed = None
+    if not seconds and todo and time_one:
+        store = store or DatasetStore()
+        store.root.mkdir(parents=True, exist_ok=True)
+        cases_dir.mkdir(parents=True, exist_ok=True)
+        start = time.perf_counter()
+        record = _run_payload(case_payload(todo[0], store, cases_dir, "dry-run-" + uuid.uuid4().hex[:8],
+                                           bool(points and writes_points(study.scenario.experiment))))
+        if record.get("status") == "ok":
+            seconds = [float(record.get("seconds") or time.perf_counter() - start)]
+            timed = {"labels": todo[0].labels, "seconds": seconds[0]}
+            todo = todo[1:]
+            done[record["hash"]] = record
+    per_case = float(np.median(seconds)) if seconds else None
+    estimate = None if per_case is None else per_case * len(todo) / max(1, int(workers))
+    return {"cases": len(cases), "seeds": len(study.seeds), "done": len(done), "todo": len(todo),
+            "per_case_s": per_case, "estimate_s": estimate, "workers": int(workers), "timed_here": timed,
+            "from_cases": len(seconds)}
 
 
 def run_sweep(study: Study, out_dir: str | Path, *, store: DatasetStore | None = None, scheduler: str | None = None,
