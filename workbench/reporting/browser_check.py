@@ -60,8 +60,6 @@ window.addEventListener("load", function () {
 </script>
 """
 _RESULT = re.compile(r'<pre id="__browser_check__">(.*?)</pre>', re.S)
-_IMG_SRC = re.compile(r'<img\b[^>]*?\bsrc="data:image/png;base64,([^"]+)"[^>]*?>', re.S)
-_ALT = re.compile(r'\balt="([^"]*)"')
 
 
 class BrowserCheckError(RuntimeError):
@@ -94,15 +92,31 @@ def _run_chromium(args: list[str], timeout_s: float) -> subprocess.CompletedProc
 
 
 def png_axes_records(html_text: str) -> list[dict]:
-    """For each embedded PNG of a report: ``{"alt", "axes"}`` with ``axes`` the figure's record of its axes (a list,
-    :func:`workbench.reporting.figures.png_bytes`) or None where the PNG carries none."""
+    """For each ``<img>`` of a report, in page order: ``{"alt", "axes"}`` with ``axes`` the figure's record of its axes
+    (a list, :func:`workbench.reporting.figures.png_bytes`), or None where the image carries none (not an embedded
+    PNG, or a PNG written another way)."""
+    from html.parser import HTMLParser
+
     from workbench.reporting.figures import read_axes_record
 
+    images = []
+
+    class Images(HTMLParser):
+        def handle_starttag(self, tag, attrs):
+            if tag == "img":
+                images.append(dict(attrs))
+
+    Images(convert_charrefs=True).feed(html_text)
     out = []
-    for m in _IMG_SRC.finditer(html_text):
-        alt = _ALT.search(m.group(0))
-        data = base64.b64decode(m.group(1))
-        out.append({"alt": alt.group(1) if alt else "", "axes": read_axes_record(data)})
+    for attrs in images:
+        src = attrs.get("src") or ""
+        record = None
+        if src.startswith("data:image/png;base64,"):
+            try:
+                record = read_axes_record(base64.b64decode(src.split(",", 1)[1]))
+            except (ValueError, TypeError):
+                record = None
+        out.append({"alt": attrs.get("alt") or "", "axes": record})
     return out
 
 

@@ -153,6 +153,7 @@ def waterfall_png(rows: list[dict], check: dict, metric: str, label: str) -> str
     ax.set_xticks(range(n + 2))
     ax.set_xticklabels([BASELINE] + [r["case"] for r in sources] + ["sum", ALL], rotation=25, ha="right", fontsize=8)
     ax.axhline(0, color="k", lw=0.5)
+    ax.set_xlabel("error source (switched on alone), their sum, all together")
     ax.set_ylabel(label)
     ax.grid(alpha=0.3, axis="y")
     ax.legend(fontsize=7)

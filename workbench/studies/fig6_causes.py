@@ -243,7 +243,7 @@ def fig6_png(ds, summaries: list[dict], best: list[str]) -> str:
 
     stage = ds["stage_mm"].values
     pm, ps = paper_at(stage)
-    fig, axes = plt.subplots(1, 2, figsize=(11, 4.2))
+    fig, axes = plt.subplots(1, 2, figsize=(11, 5.4))
     printed = paper_at([1.0, 10.0])            # the two figures the paper prints
     for ax, metric, paper, dots, label in ((axes[0], "mean_error_um", pm, printed[0], "(a) mean error of D (µm)"),
                                            (axes[1], "std_um", ps, printed[1], "(b) standard deviation of D (µm)")):
@@ -259,7 +259,8 @@ def fig6_png(ds, summaries: list[dict], best: list[str]) -> str:
         ax.set_xlabel("imposed stage displacement (mm)")
         ax.set_ylabel(label)
         ax.grid(alpha=0.3)
-        ax.legend(fontsize=7)
+        # below the axes, so no curve (the paper's first of all) is hidden behind it
+        ax.legend(fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.18), ncol=2, frameon=False)
     scale = float(ds.attrs.get("rig_scale", float("nan"))) if hasattr(ds, "attrs") else float("nan")
     fig.suptitle("The paper's Fig 6 and the simulated causes that reproduce it"
                  + (f" (renders at scale {scale:g})" if np.isfinite(scale) else ""), fontsize=9)

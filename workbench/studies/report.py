@@ -162,12 +162,14 @@ def metric_figures(ds, study: Study, floors: dict, descriptions: dict) -> list[t
                 ax.plot(range(len(labels)), floor.values, "k_", ms=20, label=floors[m][1])
             ax.set_xticks(range(len(labels)))
             ax.set_xticklabels(labels, rotation=30, ha="right", fontsize=7)
+            ax.set_xlabel("case")
         elif not axes_dims:                       # repeats only: one value, mean ± std over the seeds
             ax.bar([0], [float(mean.values)], yerr=[float(std.values)], capsize=3, color="C0", label="measured")
             if floor is not None:
                 ax.plot([0], [float(floor.values)], "k_", ms=30, label=floors[m][1])
             ax.set_xticks([0])
             ax.set_xticklabels([f"{ds.sizes.get('repeat', 1)} seeds"])
+            ax.set_xlabel("all cases (mean ± std over the seeds)")
         else:
             first = axes_dims[0]
             x = ds[first].values
