@@ -178,3 +178,144 @@ def test_a_vic3d_file_of_the_truth_scores_its_injected_errors(tmp_path):
     assert m["bias_U_um"] == pytest.approx(0.0, abs=1e-6)
     for c in ("exx", "eyy", "exy", "e1"):
         assert m[f"strain_rms_{c}_vs_windowed_microstrain"] < 1e-3, c
+
+
+MULTIDIC = DATA / "multidic_DIC2DpairResults_C_201_C_202_excerpt.mat"
+
+
+def _write_mat73(path, variables: dict) -> None:
+    """A MATLAB v7.3 file as MATLAB writes one (HDF5 behind a 512-byte user block naming it): dicts are structs,
+    ``("cell", [arrays])`` cells, ``("structarray", {field: [arrays]})`` struct arrays, arrays stored transposed."""
+    import h5py
+
+    with h5py.File(path, "w", userblock_size=512) as f:
+        refs = f.create_group("#refs#")
+        count = [0]
+
+        def array(group, name, value):
+            ds = group.create_dataset(name, data=np.asarray(value, float).T)
+            ds.attrs["MATLAB_class"] = np.bytes_("double")
+            return ds
+
+        def ref_list(group, name, arrays, cls):
+            rs = []
+            for a in arrays:
+                count[0] += 1
+                rs.append(array(refs, f"r{count[0]}", a).ref)
+            ds = group.create_dataset(name, data=np.array(rs, dtype=h5py.ref_dtype).reshape(-1, 1))
+            ds.attrs["MATLAB_class"] = np.bytes_(cls)
+
+        def put(group, name, value):
+            if isinstance(value, dict):
+                sub = group.create_group(name)
+                sub.attrs["MATLAB_class"] = np.bytes_("struct")
+                for k, v in value.items():
+                    put(sub, k, v)
+            elif isinstance(value, tuple) and value[0] == "cell":
+                ref_list(group, name, value[1], "cell")
+            elif isinstance(value, tuple) and value[0] == "cellstruct":        # a cell of structs
+                rs = []
+                for k, struct in enumerate(value[1]):
+                    count[0] += 1
+                    sub = refs.create_group(f"s{count[0]}")
+                    sub.attrs["MATLAB_class"] = np.bytes_("struct")
+                    for key, v in struct.items():
+                        put(sub, key, v)
+                    rs.append(sub.ref)
+                ds = group.create_dataset(name, data=np.array(rs, dtype=h5py.ref_dtype).reshape(-1, 1))
+                ds.attrs["MATLAB_class"] = np.bytes_("cell")
+            elif isinstance(value, tuple) and value[0] == "structarray":
+                sub = group.create_group(name)
+                sub.attrs["MATLAB_class"] = np.bytes_("struct")
+                for k, arrays in value[1].items():
+                    ref_list(sub, k, arrays, "double")
+            else:
+                array(group, name, np.atleast_2d(value))
+
+        for k, v in variables.items():
+            put(f, k, v)
+    with open(path, "r+b") as handle:
+        handle.write(b"MATLAB 7.3 MAT-file, Platform: GLNXA64, written by the workbench's tests".ljust(128, b" "))
+
+
+def test_multidic_pair_results_are_read_from_its_own_file():
+    """MultiDIC's DIC2DpairResults (an excerpt of its committed sample: 40 points, 5 images x 2 cameras): recognised,
+    4 deformed states of camera 201, x, y the 1-based Points{1} minus 1, u, v = Points{k+1} - Points{1}, as h5py
+    reads the file directly (an independent read of the same file)."""
+    import h5py
+
+    from workbench.results import detect_format, read_results
+
+    assert detect_format(MULTIDIC) == "multidic"
+    results = read_results(MULTIDIC)
+    assert [r.state for r in results] == [1, 2, 3, 4] and all(r.valid.all() for r in results)
+    with h5py.File(MULTIDIC, "r") as f:
+        cells = [np.array(f[ref]) for ref in f["DIC2DpairResults/Points"][0]]
+    np.testing.assert_array_equal(results[0].x_px, cells[0][0] - 1)
+    np.testing.assert_array_equal(results[0].y_px, cells[0][1] - 1)
+    np.testing.assert_allclose(results[2].u_px, cells[3][0] - cells[0][0])
+    np.testing.assert_allclose(results[2].v_px, cells[3][1] - cells[0][1])
+    with pytest.raises(ValueError, match="holds every state; read it with read_results"):
+        read_result(MULTIDIC, "multidic")
+
+
+def test_an_ncorr_file_of_the_truth_scores_its_injected_bias(tmp_path):
+    """An Ncorr data_dic_save written from a dic2d pair's truth (0.25 px shift) in mm (pixtounits 0.02), on Ncorr's
+    reduced grid (spacing 4: pixel = 5 x grid index), zeros outside its ROI, u off by +0.01 px: `score` recognises
+    it, leaves the zeros out and scores a u bias of 0.01 px (1e-9), v 0."""
+    from workbench.cli import main
+    from workbench.scoring.datasets import open_dataset, point_truth
+
+    scenario = tmp_path / "pair.toml"
+    scenario.write_text('experiment = "dic2d"\n[render]\nread_noise_grey = 2.0\nbit_depth = 0\n'
+                        '[image2d]\nsize_px = 160\nshift_x_px = 0.25\n')
+    ds = open_dataset(scenario, tmp_path / "store")
+    rows, cols = np.indices((32, 32))
+    x, y = 5.0 * cols, 5.0 * rows
+    uv = point_truth(ds, x.ravel(), y.ravel()).uv_left_px[1].reshape(32, 32, 2)
+    inside = (x >= 20) & (x <= 140) & (y >= 20) & (y <= 140)
+    u = np.where(inside, (uv[..., 0] + 0.01) * 0.02, 0.0)
+    v = np.where(inside, uv[..., 1] * 0.02, 0.0)
+    path = tmp_path / "ncorr_results.mat"
+    _write_mat73(path, {"data_dic_save": {
+        "dispinfo": {"spacing": 4.0, "radius": 15.0, "pixtounits": 0.02},
+        "displacements": ("structarray", {"plot_u_ref_formatted": [u], "plot_v_ref_formatted": [v]})}})
+    assert main(["score", str(scenario), str(path), "--store", str(tmp_path / "store"), "--out",
+                 str(tmp_path / "sc")]) == 0
+    m = json.loads((tmp_path / "sc" / "metrics.json").read_text())["states"][0]
+    assert m["state"] == 1 and m["valid_points"] == int(inside.sum())
+    assert m["bias_u_px"] == pytest.approx(0.01, abs=1e-9) and m["bias_v_px"] == pytest.approx(0.0, abs=1e-9)
+
+
+def test_multidic_3d_results_in_their_own_frame_score_after_one_rigid_fit(tmp_path):
+    """MultiDIC's DIC3Dcombined written from the linear plate's truth in another frame (turned 20 deg, moved 100 mm:
+    its calibration object's): the pixels from its first pair's Points{1} (1-based); scored with --align rigid, the
+    displacement error is 0 (1e-6 µm); without, the report says the frame is not the left camera's."""
+    from scipy.spatial.transform import Rotation
+
+    from test_specimen_dataset import _scenario
+    from workbench.cli import main
+    from workbench.scoring.datasets import open_dataset, point_truth
+
+    assert main(["render", "specimen", str(_scenario(tmp_path, scale=0.1)), "--out", str(tmp_path / "data")]) == 0
+    ds = open_dataset(tmp_path / "data")
+    w, h = ds.image_size_px
+    X, Y = np.meshgrid(np.arange(40, w - 40, 8.0), np.arange(40, h - 40, 8.0))
+    pt = point_truth(ds, X.ravel(), Y.ravel())
+    keep = pt.valid
+    x, y = X.ravel()[keep], Y.ravel()[keep]
+    R = Rotation.from_euler("xyz", [20, -5, 8], degrees=True).as_matrix()
+    t = np.array([100.0, -20.0, 5.0])
+    P = [pt.X_left_mm[k][keep] @ R.T + t for k in range(ds.n_states)]
+    pixels = np.column_stack([x + 1, y + 1])                       # MATLAB's 1-based
+    pair = {"nImages": float(ds.n_states), "nCamRef": 1.0, "nCamDef": 2.0,
+            "Points": ("cell", [pixels] * ds.n_states + [pixels] * ds.n_states)}
+    path = tmp_path / "DIC3Dcombined_1Pairs.mat"
+    _write_mat73(path, {"DIC3Dcombined": {"Points3D": ("cell", P), "AllPairsResults": ("cellstruct", [pair])}})
+    assert main(["score", str(tmp_path / "data"), str(path), "--align", "rigid", "--out", str(tmp_path / "sc")]) == 0
+    states = json.loads((tmp_path / "sc" / "metrics.json").read_text())["states"]
+    assert [s["state"] for s in states] == list(range(1, ds.n_states))
+    assert all(s["rms_um"] < 1e-6 and s["valid_points"] == keep.sum() for s in states)
+    assert main(["score", str(tmp_path / "data"), str(path), "--out", str(tmp_path / "sc2")]) == 0
+    hint = json.loads((tmp_path / "sc2" / "metrics.json").read_text())["states"][0]["frame_hint"]
+    assert "does not look like the left camera frame" in hint

@@ -12,6 +12,8 @@ Readers (``READERS``):
 * ``vic3d``: VIC-3D's / VIC-2D's CSV export (:mod:`workbench.readers.vic3d`);
 * ``matchid``: MatchID's CSV export (:mod:`workbench.readers.matchid`);
 * ``opencorr``: OpenCorr's 2-D or stereo result table (:mod:`workbench.readers.opencorr`);
+* ``ncorr``, ``multidic``: Ncorr's and MultiDIC's MATLAB v7.3 result files, every state in one file
+  (:mod:`workbench.readers.matlab`, read with :func:`read_results`);
 * ``pyvale``: pyvale's 2-D DIC CSV (:mod:`workbench.peers.pyvale_engine`);
 * ``auto``: the layout recognised from the header (every format above but ``csv``); a header that matches none
   is refused naming its columns and what each layout it could be lacks;
@@ -36,7 +38,9 @@ import numpy as np
 # other tools, which this module dispatches to)
 from workbench.readers.table import ResultFormatError, ToolResult, read_table, table_column
 
-READERS = ("auto", "native", "dice", "vic3d", "matchid", "opencorr", "pyvale", "csv")
+READERS = ("auto", "native", "dice", "vic3d", "matchid", "opencorr", "ncorr", "multidic", "pyvale", "csv")
+#: Formats whose one file holds every state (read with :func:`read_results`).
+MULTI_STATE = ("ncorr", "multidic")
 #: Pixel-coordinate conventions of tools: what to add to their x, y to get OpenCV's (integer pixel centres).
 PIXEL_ORIGINS = {"center": 0.0, "corner": -0.5, "one-based": -1.0}
 #: Length units of 3-D columns, in mm.
@@ -254,6 +258,25 @@ def _recognised(header: list[str]) -> list[str]:
     return found
 
 
+def read_results(path: str | Path, fmt: str = "auto", **options) -> list[ToolResult]:
+    """Every result a file holds: one per deformed state for the formats of :data:`MULTI_STATE` (each with its
+    ``state``), else the one :func:`read_result` reads. ``options`` as :func:`read_result`'s."""
+    path = Path(path)
+    if fmt == "auto" and path.is_file():
+        fmt = detect_format(path)
+    if fmt in MULTI_STATE:
+        if not path.is_file():
+            raise ValueError(f"result file not found: {path}")
+        from workbench.readers.matlab import read_multidic, read_ncorr
+
+        results = (read_ncorr if fmt == "ncorr" else read_multidic)(path)
+        empty = [r.state for r in results if not (r.valid & np.isfinite(r.x_px) & np.isfinite(r.y_px)).any()]
+        if empty:
+            raise ResultFormatError(f"{path}: state {empty[0]} holds no finite position and displacement")
+        return results
+    return [read_result(path, fmt, **options)]
+
+
 def detect_format(path: Path) -> str:
     """The layout of a result file, recognised from its header (:data:`LAYOUT_COLUMNS`).
 
@@ -263,6 +286,11 @@ def detect_format(path: Path) -> str:
         No layout or more than one matches: the message names the file's columns and, for each layout, what it
         lacks; ``--format csv --columns ...`` reads any other table.
     """
+    from workbench.readers.matlab import recognises as matlab_layout
+
+    mat = matlab_layout(Path(path))
+    if mat is not None:
+        return mat
     header, _ = read_table(path)
     found = _recognised(header)
     if len(found) == 1:
@@ -290,6 +318,8 @@ def _read_any(path, fmt: str, columns: str | None, pixel_origin: str, length_uni
         raise ValueError(f"--length-unit {length_unit!r}: choose one of {', '.join(LENGTH_UNITS_MM)}")
     if fmt == "auto":
         fmt = detect_format(path)
+    if fmt in MULTI_STATE:
+        raise ValueError(f"{path}: a {fmt} file holds every state; read it with read_results")
     if fmt == "csv":
         if not columns:
             raise ValueError("--format csv needs --columns x=..,y=..,u=..,v=.. (or U=..,V=..,W=..)")

@@ -139,10 +139,37 @@ def _inside_mask(result, mask: np.ndarray):
     return replace(result, **fields), int((~inside).sum())
 
 
+def _results_by_state(dataset, paths: list[Path], args, fmt: str, convention) -> list[tuple[int, Path, object]]:
+    """(state, file, ToolResult) of every result to score: a file of every state (Ncorr, MultiDIC) gives one per
+    state it holds; any other file is one state (:func:`_states_of`). Every file is read before any is scored."""
+    from workbench.results import MULTI_STATE, detect_format, read_result, read_results
+
+    single, out = [], []
+    for p in paths:
+        layout = detect_format(p) if fmt == "auto" and p.is_file() and p.suffix.lower() == ".mat" else fmt
+        if layout in MULTI_STATE:
+            for r in read_results(p, layout):
+                if not 1 <= r.state < dataset.n_states:
+                    raise ValueError(f"{p}: holds state {r.state}, but {dataset.folder} has states 1 to "
+                                     f"{dataset.n_states - 1}")
+                if args.state is None or args.state == r.state:
+                    out.append((r.state, p, r))
+        else:
+            single.append(p)
+    for state, path in _states_of(dataset, single, args.state, fmt) if single else []:
+        out.append((state, path, read_result(path, fmt, args.columns, args.pixel_origin, args.length_unit,
+                                             convention, args.ignore_strain)))
+    states = [k for k, _, _ in out]
+    twice = sorted({k for k in states if states.count(k) > 1})
+    if twice:
+        raise ValueError(f"several results give state {twice[0]}: "
+                         f"{', '.join(str(p) for k, p, _ in out if k == twice[0])}")
+    return sorted(out, key=lambda item: item[0])
+
+
 def score_command(args) -> int:
     from workbench.scoring.datasets import open_dataset, point_truth, subset_roi_xyxy_px
     from workbench.engines import parse_engine, run_engine
-    from workbench.results import read_result
     from workbench.scoring.metrics import score_state
     from workbench.scoring.probes import extensometer, parse_segment
     from workbench.scoring.report import write_score_report
@@ -186,9 +213,7 @@ def score_command(args) -> int:
         if not t.valid.all():
             raise ValueError(f"--extensometer {','.join(f'{v:g}' for v in g)}: an end does not see the specimen in the "
                              "left reference image")
-    for state, path in _states_of(dataset, paths, args.state, fmt):
-        result = read_result(path, fmt, args.columns, args.pixel_origin, args.length_unit, convention,
-                             args.ignore_strain)
+    for state, path, result in _results_by_state(dataset, paths, args, fmt, convention):
         tool = tool or result.tool
         if mask is not None:
             result, outside = _inside_mask(result, mask)

@@ -36,6 +36,8 @@ class ToolResult:
         (dimensionless, tensor shear) in the local frame of :mod:`measurement.strain` (x: the left image's x
         projected onto the surface), converted from the tool's convention
     surface_strain_sigma : (N, 3) float or None, the tool's standard uncertainty of the same
+    state : int or None, the dataset state the result is of, where the file says (a file of every state: Ncorr's,
+        MultiDIC's); None where the file name or ``--state`` tells
     strain_window : dict or None, how the tool computed its strain: ``{"window_points": k or None (triangles),
         "fit": "linear" | "quadratic"}`` where the file (or its manifest) says; None where it does not
     """
@@ -56,6 +58,7 @@ class ToolResult:
     surface_strain: np.ndarray | None = None
     surface_strain_sigma: np.ndarray | None = None
     strain_window: dict | None = None
+    state: int | None = None
 
     @property
     def has_2d(self) -> bool:

@@ -304,7 +304,7 @@ def true_rig(dataset: Dataset):
     return CalibratedRig("rmm", cams["left"], cams["right"], np.asarray(R, float), np.asarray(T, float)), notes
 
 
-def dense_truth(dataset: Dataset, step_px: int = 1) -> dict:
+def dense_truth(dataset: Dataset, step_px: int = 1, *, progress: bool = False) -> dict:
     """Per-pixel truth of the left reference image on every ``step_px``-th pixel, as float32 arrays.
 
     Returns ``{"x_px": (W',), "y_px": (H',), "valid": (H', W') bool, "uv_left_px": (S, H', W', 2)`` and for
@@ -321,7 +321,9 @@ def dense_truth(dataset: Dataset, step_px: int = 1) -> dict:
         out["X_left_mm"] = np.full((S, ys.size, xs.size, 3), np.nan, np.float32)
         out["xy_right_px"] = np.full((S, ys.size, xs.size, 2), np.nan, np.float32)
     rows = max(1, 100_000 // xs.size)                   # blocks of rows: float64 work arrays stay ~100 MB
-    for r0 in range(0, ys.size, rows):
+    from tqdm import tqdm
+
+    for r0 in tqdm(range(0, ys.size, rows), desc=f"truth of every {step_px} px", unit="block", disable=not progress):
         r1 = min(ys.size, r0 + rows)
         X, Y = np.meshgrid(xs, ys[r0:r1])
         pt = point_truth(dataset, X.ravel(), Y.ravel())

@@ -308,7 +308,7 @@ def _export_into(dataset: Dataset, fmt: str, folder: Path, settings: ExportSetti
             record["notes"] += [f"{c['camera']}: {n}" for n in c["notes"]]
         for n in notes:
             log(f"  note: {n}")
-    dense = dense_truth(dataset, settings.truth_step_px)
+    dense = dense_truth(dataset, settings.truth_step_px, progress=log is print)
     buffer = io.BytesIO()
     np.savez_compressed(buffer, **dense, labels=np.array(dataset.labels))
     (folder / "truth").mkdir()
