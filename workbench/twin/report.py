@@ -209,16 +209,16 @@ def report_markdown(result, figures: dict) -> str:
     lines = ["# Digital twin of your rig", ""]
     kind = "stereo rig" if stereo else "one camera (2-D DIC)"
     lines += [f"- **rig**: {kind}" + (f" from `{result.inputs.calibration}`" if result.inputs.calibration else ""),
-              f"- **images**: " + ", ".join(f"{k} `{Path(v).name}`" for k, v in s["inputs"].items()),
+              "- **images**: " + ", ".join(f"{k} `{Path(v).name}`" for k, v in s["inputs"].items()),
               f"- **bit depth**: {result.inputs.bit_depth}; **ROI**: {result.roi_used}",
               f"- **settings**: subset {result.settings.subset_px} px, step {s['dic_step_px']} px, order "
               f"{result.settings.order}, {result.settings.interpolation}, strain window "
               f"{result.settings.strain_window} points (virtual strain gauge {_fmt(p.get('vsg_px'))} px)",
               f"- twin repeats: {p.get('repeats')} static pair(s), {p.get('points')} points", ""]
     lines += ["## Predicted noise floor", "",
-              f"Static noise (1σ over the ROI, mean removed) of the instrument with your settings on the twin's "
-              f"static pairs; beside it the instrument's own predicted sigma of a static repeat "
-              f"(measurement.uncertainty: each subset's Hessian and your noise model"
+              "Static noise (1σ over the ROI, mean removed) of the instrument with your settings on the twin's "
+              "static pairs; beside it the instrument's own predicted sigma of a static repeat "
+              "(measurement.uncertainty: each subset's Hessian and your noise model"
               + (", carried through both cameras' triangulation" if stereo else "") +
               "; RMS over the same points), the figure the instrument reports with every measurement.", "",
               "| quantity | twin repeats | instrument's sigma |" +

@@ -236,7 +236,7 @@ def _render_text(metrics: dict) -> str:
                 + (f", blurred by quadrature over the pixel and the aperture (each blur's rule within "
                    f"{max(quadrature):.3f} grey RMS of a rule 4-5x denser, scenes.rendering.defocus_quadrature)"
                    if quadrature else ""))
-    text = (f"the pixels in focus (blur circle <= 0.1 px) and the blurred plate's without Monte Carlo "
+    text = ("the pixels in focus (blur circle <= 0.1 px) and the blurred plate's without Monte Carlo "
             "(at least " + ", ".join(f"{100 * v:.0f} % of the {k} camera's" for k, v in shares.items())
             + f"), the rest (edges) by adaptive sampling (Monte-Carlo noise target {metrics['mc_target_grey']:g} "
             f"grey, measured {max(rms):.3f} grey RMS at most over the sampled pixels)")
