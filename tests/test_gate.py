@@ -112,6 +112,11 @@ def test_gate_passes_on_its_baseline_and_fails_when_degraded(tmp_path):
     failed = {c.get("name") for c in ET.parse(tmp_path / "small.xml").getroot() if c.find("failure") is not None}
     assert "random_error_px" in failed                  # a 17 px subset roughly doubles the noise floor
     assert "FAIL" in (tmp_path / "small" / "gate.md").read_text()
+    from workbench.reporting.html_report import check_html_report
+
+    page = check_html_report(tmp_path / "small" / "report.html")      # the same table, as a page a reader opens
+    assert any(t["columns"] > 3 for t in page["tables"])
+    assert "FAIL" in (tmp_path / "small" / "report.html").read_text()
 
 
 def test_a_stale_baseline_is_said_and_fails_the_gate_when_required(tmp_path):

@@ -585,12 +585,16 @@ def gate_command(args) -> int:
                f"{'PASSED' if record['passed'] else 'FAILED'} in {record['total_s']:.1f} s "
                f"({', '.join(f'{k} {v:.1f} s' for k, v in record['timings_s'].items())})."]
     atomic_write_text(args.out / "gate.md", "\n".join(summary) + "\n")
+    from workbench.reporting.html_report import write_html_report
+
+    write_html_report(args.out / "report.html", f"Accuracy gate: {record['gate']}", "\n".join(summary) + "\n",
+                      args.out)
     if args.junit is not None:
         write_junit(record, args.junit)
     print("\n".join(lines))
     n_fail = sum(not r["passed"] for r in record["metrics"])
     verdict_text = "passed" if record["passed"] else (f"FAILED ({n_fail} of {len(record['metrics'])} metrics)"
                                                       if n_fail else "FAILED (the baseline is stale)")
-    print(f"gate {verdict_text} in {record['total_s']:.1f} s; wrote {args.out / 'gate.md'}"
+    print(f"gate {verdict_text} in {record['total_s']:.1f} s; wrote {args.out / 'gate.md'}, report.html"
           + (f" and {args.junit}" if args.junit else ""))
     return 0 if record["passed"] or args.update_baseline else 1

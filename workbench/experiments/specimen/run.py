@@ -205,6 +205,7 @@ def reproduce_catalog(out_dir, names=None, *, scale: float = 0.25, subset_size: 
     from labio.atomic import atomic_write_text
     from measurement.calibration.io import CalibratedRig
     from scenes.specimens.catalog import CATALOG, write_pvd
+    from workbench.reporting.html_report import write_html_report
     from workbench.experiments.specimen.catalog import scenario_text
     from workbench.config import load_config
     from workbench.experiments.specimen.scenes import load_specimen_truth, render_specimen, rig_of
@@ -241,9 +242,14 @@ def reproduce_catalog(out_dir, names=None, *, scale: float = 0.25, subset_size: 
         maps = m.pop("maps")
         atomic_write_text(folder / "metrics.json", json.dumps(m, indent=1, allow_nan=True))
         atomic_write_text(folder / "report.md", _report(m))
+        write_html_report(folder / "report.html", f"{name}: stereo-DIC against the FE truth", _report(m), folder)
         m["maps"] = maps
         summary.append(m)
-    atomic_write_text(out_dir / "report.md", _summary(summary, scale))
+    text = _summary(summary, scale)
+    atomic_write_text(out_dir / "report.md", text)
+    # one page for a reader: the summary, then each specimen's report (links between the pages point to HTML)
+    write_html_report(out_dir / "report.html", "The specimen catalog through the instrument",
+                      text.replace("/report.md)", "/report.html)"), out_dir)
     return {"specimens": summary}
 
 
@@ -382,9 +388,9 @@ def _strain_figure(path: Path, m: dict, name: str) -> None:
                               ("measured", "truth through the strain window", "exact truth")):
         im = ax.imshow(1e6 * maps[key], vmin=0, vmax=vmax, cmap="viridis")
         ax.set_title(f"{title} (µε)")
-        ax.set_xticks([])
-        ax.set_yticks([])
-    fig.colorbar(im, ax=axes, shrink=0.8)
+        ax.set_xlabel("grid column (points)")
+        ax.set_ylabel("grid row (points)")
+    fig.colorbar(im, ax=axes, shrink=0.8).set_label("strain magnitude (µε)")
     fig.suptitle(f"{name}: strain magnitude, state {k}")
     from workbench.reporting.figures import png_bytes
 
