@@ -200,6 +200,7 @@ def verification_figure(verification: dict, path: Path) -> str:
                label=f"{key}: predicted")
         ax.bar(xs + width / 2, st["measured_um"], width, color=COLOURS.get(key), label=f"{key}: measured")
     ax.set_xticks(range(3), ["U (face x)", "V (face y)", "W (normal)"])
+    ax.set_xlabel("displacement component, specimen face frame")
     ax.set_ylabel("static-pair noise, 1 sigma (µm)")
     ax.set_title("Verification: rendered and measured by the instrument", fontsize=9)
     ax.legend(fontsize=8)
