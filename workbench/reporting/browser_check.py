@@ -191,13 +191,14 @@ def main(argv: list[str] | None = None) -> int:
 
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("reports", type=Path, nargs="+")
-    parser.add_argument("--screenshots", type=Path, default=None, help="folder for one PNG screenshot per report")
+    parser.add_argument("--screenshots", type=Path, default=None,
+                        help="folder for one screenshot per report (JPEG, the first 2 400 px of the page)")
     args = parser.parse_args(argv)
     failed = 0
     for k, report in enumerate(args.reports):
         shot = None
-        if args.screenshots is not None:
-            shot = args.screenshots / (re.sub(r"[^A-Za-z0-9_.-]+", "_", str(report.parent)) + ".png")
+        if args.screenshots is not None:       # JPEG: a few screens of a report, small enough to keep
+            shot = args.screenshots / (re.sub(r"[^A-Za-z0-9_.-]+", "_", str(report.parent)).strip("_") + ".jpg")
         result = check_in_browser(report, screenshot=shot)
         status = "ok" if result["ok"] else "FAILED"
         print(f"{status}: {report} ({result['figures']} figures, {result['layout']['scrollWidth']} px wide)")
