@@ -13,7 +13,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 
 from workbench.reporting.browser_check import check_in_browser, chromium_path  # noqa: E402
-from workbench.reporting.figures import png_bytes, read_axes_record  # noqa: E402
+from labio.figures import png_bytes, read_axes_record  # noqa: E402
 from workbench.reporting.html_report import write_html_report  # noqa: E402
 
 needs_chromium = pytest.mark.skipif(chromium_path() is None, reason="no Chromium (scripts/bootstrap.sh installs "
@@ -97,4 +97,4 @@ def test_a_figure_written_elsewhere_fails_the_check(tmp_path):
     report = write_html_report(tmp_path / "r.html", "r", "# r\n\n![plain figure](plain.png)\n", tmp_path)
     problems = check_in_browser(report)["problems"]
     assert problems == ["figure 1 ('plain figure'): no record of its axes (not written through "
-                        "workbench.reporting.figures)"]
+                        "labio.figures)"]

@@ -227,8 +227,8 @@ def save_figure(fig, path: str | Path, **savefig_kwargs) -> Path:
 
     path = Path(path)
     fmt = path.suffix.lstrip(".").lower() or "png"
-    if fmt == "png":                    # a report's figure: with the record of its axes (workbench.reporting.figures)
-        from workbench.reporting.figures import png_bytes
+    if fmt == "png":                    # a report's figure: with the record of its axes (labio.figures)
+        from labio.figures import png_bytes
 
         dpi = savefig_kwargs.pop("dpi", 110)
         return atomic_write_bytes(path, png_bytes(fig, dpi=dpi, close=False, **savefig_kwargs))

@@ -33,7 +33,7 @@ def _fmt(v, digits: int = 3) -> str:
 
 
 def _png(fig, path: Path) -> str:
-    from workbench.reporting.figures import png_bytes
+    from labio.figures import png_bytes
 
     data = png_bytes(fig, dpi=100, bbox_inches="tight")
     with atomic_writer(path, "wb") as f:

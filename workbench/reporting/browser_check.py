@@ -7,7 +7,7 @@ fails it when
   the widest elements that stick out;
 * an image does not load or decode (``naturalWidth == 0``);
 * a figure has a plotted axis without a label: every figure the project writes carries, in its PNG, the labels of
-  its axes (:func:`workbench.reporting.figures.png_bytes`); an axis with ticks and no label, a colour bar without
+  its axes (:func:`labio.figures.png_bytes`); an axis with ticks and no label, a colour bar without
   one, or a figure with no such record fails (a PNG from elsewhere cannot show its axes were labelled).
 
 Optionally it writes a screenshot of the report's first screens (for a human reader, e.g. a closing note).
@@ -93,11 +93,11 @@ def _run_chromium(args: list[str], timeout_s: float) -> subprocess.CompletedProc
 
 def png_axes_records(html_text: str) -> list[dict]:
     """For each ``<img>`` of a report, in page order: ``{"alt", "axes"}`` with ``axes`` the figure's record of its axes
-    (a list, :func:`workbench.reporting.figures.png_bytes`), or None where the image carries none (not an embedded
+    (a list, :func:`labio.figures.png_bytes`), or None where the image carries none (not an embedded
     PNG, or a PNG written another way)."""
     from html.parser import HTMLParser
 
-    from workbench.reporting.figures import read_axes_record
+    from labio.figures import read_axes_record
 
     images = []
 
@@ -126,7 +126,7 @@ def unlabelled_axes(records: list[dict]) -> list[str]:
     for k, rec in enumerate(records, 1):
         name = f"figure {k} ({rec['alt'][:60]!r})"
         if rec["axes"] is None:
-            problems.append(f"{name}: no record of its axes (not written through workbench.reporting.figures)")
+            problems.append(f"{name}: no record of its axes (not written through labio.figures)")
             continue
         for a in rec["axes"]:
             where = f"{name}, panel {a.get('title') or a['index']!r}"

@@ -60,7 +60,7 @@ def _fmt(v) -> str:
 
 
 def _png(fig) -> bytes:
-    from workbench.reporting.figures import png_bytes
+    from labio.figures import png_bytes
 
     return png_bytes(fig, dpi=100)
 

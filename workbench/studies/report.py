@@ -113,7 +113,7 @@ def save_csv(ds, path: Path) -> Path:
 # ------------------------------------------------------------------------------------------------------------
 def png_base64(fig) -> str:
     """A matplotlib figure as base64 PNG text (110 dpi), for an ``<img src="data:image/png;base64,...">``."""
-    from workbench.reporting.figures import png_bytes
+    from labio.figures import png_bytes
 
     return base64.b64encode(png_bytes(fig, dpi=110, close=False)).decode()
 
@@ -126,7 +126,7 @@ def metric_figures(ds, study: Study, floors: dict, descriptions: dict) -> list[t
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from workbench.reporting.figures import quantity_label
+    from labio.figures import quantity_label
 
     out = []
     floor_names = {f for f, _ in floors.values()}

@@ -285,7 +285,7 @@ def reproduce_depth_of_field(out_dir, *, scale: float = 1.0, object_tilt_deg: fl
     side = np.hstack([st, np.full((h, max(4, w // 100)), 255.0), cv])
     f = min(1.0, 1400 / side.shape[1])
     from labio.atomic import atomic_write_bytes
-    from workbench.reporting.figures import picture_png
+    from labio.figures import picture_png
 
     atomic_write_bytes(out_dir / "side_by_side.png", picture_png(
         cv2.resize(np.clip(side, 0, 255).astype(np.uint8), None, fx=f, fy=f, interpolation=cv2.INTER_AREA)))

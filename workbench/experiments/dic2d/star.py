@@ -545,7 +545,7 @@ def _plot_png(runs: list[dict], periods_px) -> bytes:
         ax.grid(alpha=0.3)
         ax.legend(fontsize=8, loc="lower right")
     fig.tight_layout()
-    from workbench.reporting.figures import png_bytes
+    from labio.figures import png_bytes
 
     return png_bytes(fig, dpi=120)
 

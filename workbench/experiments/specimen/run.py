@@ -392,7 +392,7 @@ def _strain_figure(path: Path, m: dict, name: str) -> None:
         ax.set_ylabel("grid row (points)")
     fig.colorbar(im, ax=axes, shrink=0.8).set_label("strain magnitude (µε)")
     fig.suptitle(f"{name}: strain magnitude, state {k}")
-    from workbench.reporting.figures import png_bytes
+    from labio.figures import png_bytes
 
     data = png_bytes(fig, dpi=90)
     with atomic_writer(path, "wb") as handle:
