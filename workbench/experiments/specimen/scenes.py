@@ -160,6 +160,20 @@ class SpecimenTruth:
             X_world[:, ok] = X
         return X_spec, X_world
 
+    def strain_truths(self, pixels_left_ref) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`strain_truth` of every state at once (the pixels' material points found once): E (S, N, 2, 2), Q
+        (N, 3, 2)."""
+        face, st = self.material_points(pixels_left_ref, "left")
+        ok = face >= 0
+        S, n = self.specimen.n_states, len(face)
+        E = np.full((S, n, 2, 2), np.nan)
+        Q = np.full((n, 3, 2), np.nan)
+        if ok.any():
+            for k in range(S):
+                E[k, ok], Qs = self.specimen.surface_strain(face[ok], st[ok], k)
+            Q[ok] = np.einsum("ij,njk->nik", self.specimen.state_pose(0, *self.pose)[0], Qs)
+        return E, Q
+
     def strain_truth(self, pixels_left_ref, k: int) -> tuple[np.ndarray, np.ndarray]:
         """Exact surface Green-Lagrange strain of state k relative to state 0 at left reference pixels: E (N, 2, 2) in
         the basis Q (N, 3, 2), world frame (NaN where not measurable)."""
