@@ -95,6 +95,7 @@ def _maps_figure(result, out: Path) -> str | None:
                 im = ax.imshow(grid, extent=extent, cmap="viridis", vmin=0, vmax=hi, aspect="equal")
             ax.set_title(f"{name}: {title}", fontsize=8)
             ax.set_xlabel("x (px, left image)", fontsize=7)
+            ax.set_ylabel("y (px, left image)", fontsize=7)
             ax.tick_params(labelsize=6)
             fig.colorbar(im, ax=ax, label=unit, shrink=0.8)
     return _png(fig, out / "noise_maps.png")
@@ -128,6 +129,7 @@ def _speckle_figure(result, out: Path) -> str:
         ax.bar(edges[:-1], sp["histogram"], width=np.diff(edges), align="edge", color="0.4")
         ax.axvline(sp["mean_grey"], color="C1", label=f"mean {sp['mean_grey']:.1f}")
         ax.set_xlabel("grey level", fontsize=8)
+        ax.set_ylabel("pixels", fontsize=8)
         ax.set_title(f"histogram: contrast (std/mean) {sp['contrast']:.2f}, saturated "
                      f"{100 * sp['saturated_fraction']:.2f} %", fontsize=8)
         ax.legend(fontsize=7)
@@ -162,6 +164,7 @@ def _whatif_figure(result, out: Path) -> str | None:
     axes[0].barh(y, disp, color=["C2" if r.get("rank") == 1 else "C0" for r in rows][::-1], label="twin repeats")
     axes[0].plot(sigma, y, "k|", ms=14, label="instrument's sigma (measurement.uncertainty)")
     axes[0].set_yticks(y, labels, fontsize=7)
+    axes[0].set_ylabel("what if", fontsize=8)
     axes[0].set_xlabel(f"displacement noise, RMS of components ({unit})", fontsize=8)
     axes[0].legend(fontsize=7)
     axes[1].barh(y, [r["strain_noise_ue"] for r in rows][::-1], color="C3")
