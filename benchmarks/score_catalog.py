@@ -16,8 +16,8 @@ For each specimen, every step is the command a user types (run here in-process t
    pull across the width of the region of interest, away from the concentration.
 
 The goal (issue 37): the peak of e1 measured within 10 % of the truth through the same window, in every loaded state.
-``<out>/README.md`` has the table; ``<out>/<name>/score/`` the score report (report.html); ``<out>/summary.json``
-the figures. Work folders (images) go to a temporary folder; only the score report and the stereo summary are kept.
+``<out>/README.md`` has the table; ``<out>/<name>/score/`` the score report (report.html; its errors.csv, megabytes
+per specimen, is not kept); ``<out>/summary.json`` the figures. Work folders (images) go to a temporary folder; only the score report and the stereo summary are kept.
 """
 from __future__ import annotations
 
@@ -91,6 +91,7 @@ def run_specimen(name: str, scale: float, out: Path, work: Path) -> dict:
     _main(["score", str(data), *map(str, sorted(stereo.glob("state_*.csv"))), "--line", line, "--extensometer", gauge,
            "--out", str(score)])
     timings["score_s"] = time.perf_counter() - start
+    (score / "errors.csv").unlink()          # per point and state: megabytes, and `workbench score` makes it again
     shutil.copy(stereo / "summary.csv", out / name / "stereo_summary.csv")
     shutil.copy(stereo / "manifest.json", out / name / "stereo_manifest.json")
     metrics = json.loads((score / "metrics.json").read_text())

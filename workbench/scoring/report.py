@@ -87,17 +87,32 @@ def _limits(*arrays, symmetric: bool = False) -> tuple[float, float]:
     return lo, hi
 
 
+#: The speckle image behind the maps is shown at most this wide (px): the maps' context, not their data (a 5 MP
+#: speckle image at full size would make every PNG megabytes of noise).
+BACKGROUND_WIDTH_PX = 240
+
+
+def _background(speckle: np.ndarray) -> np.ndarray:
+    import cv2
+
+    h, w = speckle.shape[:2]
+    f = min(1.0, BACKGROUND_WIDTH_PX / w)
+    return cv2.resize(np.asarray(speckle, np.float32), None, fx=f, fy=f, interpolation=cv2.INTER_AREA) if f < 1 \
+        else speckle
+
+
 def _map_panel(fig, ax, speckle, x, y, values, title, unit, lims, cmap, marks=()):
     from workbench.scoring.strain import grid_layout
 
     ok = np.isfinite(values)
-    ax.imshow(speckle, cmap="gray", interpolation="nearest")
+    h, w = speckle.shape[:2]
+    ax.imshow(_background(speckle), cmap="gray", interpolation="bilinear", extent=(-0.5, w - 0.5, h - 0.5, -0.5))
     try:                                   # a grid result: one cell per point, over the speckle it measured
         layout = grid_layout(x, y)
         (x0, y0), h = layout.origin_px, layout.step_px / 2
         rows, cols = layout.shape
         sc = ax.imshow(layout.on_grid(np.where(ok, values, np.nan)), cmap=cmap, vmin=lims[0], vmax=lims[1],
-                       alpha=0.8, interpolation="nearest",
+                       interpolation="nearest",
                        extent=(x0 - h, x0 + (cols - 1) * 2 * h + h, y0 + (rows - 1) * 2 * h + h, y0 - h))
         ax.set_xlim(-0.5, speckle.shape[1] - 0.5)
         ax.set_ylim(speckle.shape[0] - 0.5, -0.5)
