@@ -284,6 +284,7 @@ def _figures(out_dir: Path, results: list[dict]) -> dict:
     a1.plot(std_z, y, "o")
     a1.set_xlabel("std(error / sigma)")
     a1.set_yticks(y, labels, fontsize=8)
+    a1.set_ylabel("class: component")
     a1.invert_yaxis()
     a1.legend(fontsize=8)
     a2.axvspan(*GOALS["coverage_95"], color="tab:green", alpha=0.15)
