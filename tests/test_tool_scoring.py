@@ -128,7 +128,7 @@ def _dice_solution(path, x, y, u, v, failed):
 
 def test_dice_solution_with_injected_bias_scores_that_bias(pair, tmp_path):
     """A DICe solution file made from the truth + 0.01 px in u, with 10 % of points marked failed (SIGMA = -1):
-    bias 0.01 px exactly, valid fraction 0.9."""
+    bias 0.01 px exactly, valid fraction 0.9, and DICe's own SIGMA scored by its coverage."""
     x, y = _grid(pair, 10)
     pt = point_truth(pair, x, y)
     failed = np.arange(x.size) % 10 == 3
@@ -138,6 +138,9 @@ def test_dice_solution_with_injected_bias_scores_that_bias(pair, tmp_path):
     assert m["bias_u_px"] == pytest.approx(0.01, abs=1e-6)
     assert m["bias_v_px"] == pytest.approx(0.0, abs=1e-6) and m["std_u_px"] < 1e-6
     assert m["valid_fraction"] == pytest.approx(1 - failed.mean(), abs=1e-12)
+    # DICe's own SIGMA (0.005 px here) scored by its coverage: the 0.01 px bias is 2 of its sigmas, outside +-1.96
+    # everywhere; v, exact, inside everywhere
+    assert m["sigma_coverage_95_u"] == 0.0 and m["sigma_coverage_95_v"] == 1.0
 
 
 def test_nan_rows_are_not_measured_points_and_the_rest_is_scored(pair, tmp_path):

@@ -122,7 +122,13 @@ def read_dice(path: Path) -> ToolResult:
     if "VSG_STRAIN_XX" in header:
         strain = np.column_stack([col(f"VSG_STRAIN_{c}", "strain") for c in ("XX", "YY", "XY")])
         strain[~valid] = np.nan
-    return ToolResult(path, "DICe", x, y, valid, u, v, X, U, frame="DICe model frame (camera 0)", strain=strain)
+    # DICe's SIGMA: its own estimate of the displacement's standard deviation (px), scored by its coverage
+    sigma = None
+    if "SIGMA" in header:
+        sig = np.where(valid, col("SIGMA"), np.nan)
+        sigma = np.column_stack([sig, sig])
+    return ToolResult(path, "DICe", x, y, valid, u, v, X, U, frame="DICe model frame (camera 0)", strain=strain,
+                      sigma_uv_px=sigma)
 
 
 def read_pyvale(path: Path) -> ToolResult:
