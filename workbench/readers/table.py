@@ -38,8 +38,8 @@ class ToolResult:
     surface_strain_sigma : (N, 3) float or None, the tool's standard uncertainty of the same
     state : int or None, the dataset state the result is of, where the file says (a file of every state: Ncorr's,
         MultiDIC's); None where the file name or ``--state`` tells
-    strain_window : dict or None, how the tool computed its strain: ``{"window_points": k or None (triangles),
-        "fit": "linear" | "quadratic"}`` where the file (or its manifest) says; None where it does not
+    strain_window : dict or None, how the tool computed its strain, ``{"window_points": k, "fit": f}`` (k None for
+        triangles, f ``"linear"`` or ``"quadratic"``) where the file (or its manifest) says; None where it does not
     """
 
     source: Path
