@@ -17,13 +17,18 @@ have_llvm19() {
     return 1
 }
 
+# apt_install PACKAGE WHY: Debian's package, as root or through sudo
+apt_install() {
+    local SUDO=""
+    [ "$(id -u)" -ne 0 ] && SUDO="sudo"
+    echo "[bootstrap] installing $1 ($2)"
+    $SUDO apt-get update -qq
+    DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -qq "$1" >/dev/null
+}
+
 if ! have_llvm19; then
     if command -v apt-get >/dev/null 2>&1; then
-        SUDO=""
-        [ "$(id -u)" -ne 0 ] && SUDO="sudo"
-        echo "[bootstrap] installing libllvm19 (needed by Dr.Jit's LLVM backend)"
-        $SUDO apt-get update -qq
-        DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -qq libllvm19 >/dev/null
+        apt_install libllvm19 "needed by Dr.Jit's LLVM backend"
     else
         echo "[bootstrap] WARNING: no apt-get; install LLVM 19's shared library (libLLVM-19.so) yourself" >&2
     fi
@@ -33,11 +38,7 @@ fi
 # without it those tests are skipped. WORKBENCH_NO_CHROMIUM=1 leaves it out.
 if [ "${WORKBENCH_NO_CHROMIUM:-0}" != "1" ] && ! command -v chromium >/dev/null 2>&1; then
     if command -v apt-get >/dev/null 2>&1 && { [ "$(id -u)" -eq 0 ] || command -v sudo >/dev/null 2>&1; }; then
-        SUDO=""
-        [ "$(id -u)" -ne 0 ] && SUDO="sudo"
-        echo "[bootstrap] installing Debian's chromium (the browser check of the HTML reports)"
-        $SUDO apt-get update -qq
-        DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -qq chromium >/dev/null
+        apt_install chromium "Debian's Chromium: the browser check of the HTML reports"
     else
         echo "[bootstrap] note: no chromium and no apt-get: the browser check of the reports is skipped" >&2
     fi

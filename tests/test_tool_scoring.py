@@ -174,6 +174,12 @@ def test_nan_rows_are_not_measured_points_and_the_rest_is_scored(pair, tmp_path)
     assert m["bias_v_px"] == pytest.approx(0.02, abs=1e-9) and m["bias_u_px"] == pytest.approx(0.0, abs=1e-9)
     assert f"{(nan_uv & ~nan_all).sum()} not measured" in proc.stdout
     assert f"{nan_all.sum()} rows without a finite x, y" in proc.stdout
+    # --columns alone means a CSV: the same file scores the same without --format
+    alone = subprocess.run([sys.executable, "-m", "workbench.cli", "score", str(pair.folder), str(path), "--columns",
+                            "x=px,y=py,u=du,v=dv", "--out", str(tmp_path / "alone")], capture_output=True, text=True)
+    assert alone.returncode == 0, alone.stderr
+    again = json.loads((tmp_path / "alone" / "metrics.json").read_text())["states"][0]
+    assert (again["valid_points"], again["bias_v_px"]) == (m["valid_points"], m["bias_v_px"])
 
     empty = tmp_path / "all_nan.csv"
     empty.write_text("px,py,du,dv\n" + "".join(f"{x[i]:g},{y[i]:g},nan,nan\n" for i in range(5)))

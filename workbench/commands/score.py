@@ -20,7 +20,8 @@ def add_parser(sub) -> None:
                          "result is scored against the state of the images it measured (its manifest.json says which); "
                          "another file's state is the number its name ends with (0 = the reference), or --state")
     sc.add_argument("--format", choices=READERS, default=None,
-                    help="result file format (default: the engine's, else auto: recognised from the header)")
+                    help="result file format (default: the engine's, csv with --columns, else auto: recognised from "
+                         "the header)")
     sc.add_argument("--columns", default=None, help="for --format csv: x=COL,y=COL,u=COL,v=COL[,X=..,Y=..,Z=..,"
                                                     "U=..,V=..,W=..,valid=COL]")
     sc.add_argument("--pixel-origin", choices=tuple(PIXEL_ORIGINS), default="center",
@@ -205,7 +206,7 @@ def score_command(args) -> int:
                      "images (2-D)")
     if not paths:
         raise ValueError("no result files and no --engine")
-    fmt = fmt or "auto"
+    fmt = fmt or ("csv" if args.columns else "auto")        # a column mapping is for a CSV of any layout
     scores, tool = [], None
     extensometers = {g: [] for g in gauges}
     gauge_truth = {g: point_truth(dataset, [g[0], g[2]], [g[1], g[3]]) for g in gauges}

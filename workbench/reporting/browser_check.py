@@ -151,6 +151,7 @@ def check_in_browser(path: str | Path, *, screenshot: str | Path | None = None, 
     path = Path(path).resolve()
     text = path.read_text(encoding="utf-8")
     probe = text.replace("</body>", _PROBE + "</body>") if "</body>" in text else text + _PROBE
+    # the probe goes into a copy in a private temporary folder (deleted with it): the report itself is never written
     with tempfile.TemporaryDirectory(prefix="workbench-browser-check-") as tmp:
         copy = Path(tmp) / path.name
         copy.write_text(probe, encoding="utf-8")
@@ -177,10 +178,7 @@ def check_in_browser(path: str | Path, *, screenshot: str | Path | None = None, 
     if screenshot is not None:
         shot = Path(screenshot).resolve()
         shot.parent.mkdir(parents=True, exist_ok=True)
-        with tempfile.TemporaryDirectory(prefix="workbench-browser-shot-") as tmp:
-            copy = Path(tmp) / path.name
-            copy.write_text(text, encoding="utf-8")
-            _run_chromium([f"--window-size={WIDTH_PX},2400", f"--screenshot={shot}", copy.as_uri()], timeout_s)
+        _run_chromium([f"--window-size={WIDTH_PX},2400", f"--screenshot={shot}", path.as_uri()], timeout_s)
     return {"ok": not problems, "problems": problems, "layout": layout, "figures": len(records)}
 
 
